@@ -124,3 +124,57 @@ impl Heightfield {
         });
     }
 }
+
+/// A smooth stand-in for nodata: push-pull over an image pyramid (average of
+/// the valid samples below each coarser cell, pulled back down). Only
+/// vertices forced onto nodata samples (chunk corners, line midpoints) take
+/// these heights; no error is ever measured against them. `None` when the
+/// grid has no voids.
+pub fn void_fill(hf: &Heightfield) -> Option<Vec<f32>> {
+    if !hf.heights.iter().any(|h| h.is_nan()) {
+        return None;
+    }
+    // levels[0] = the grid; each next one halves both sizes (rounding up).
+    let mut levels: Vec<(usize, usize, Vec<f32>)> = vec![(hf.width, hf.height, hf.heights.clone())];
+    while {
+        let (w, h, _) = &levels[levels.len() - 1];
+        *w > 1 || *h > 1
+    } {
+        let (w, h, src) = &levels[levels.len() - 1];
+        let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+        let mut dst = vec![f32::NAN; nw * nh];
+        for i in 0..nh {
+            for j in 0..nw {
+                let (mut sum, mut n) = (0.0f64, 0u32);
+                for (di, dj) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                    let (si, sj) = (2 * i + di, 2 * j + dj);
+                    if si < *h && sj < *w {
+                        let v = src[si * w + sj];
+                        if !v.is_nan() {
+                            sum += f64::from(v);
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    dst[i * nw + j] = (sum / f64::from(n)) as f32;
+                }
+            }
+        }
+        levels.push((nw, nh, dst));
+    }
+    for l in (0..levels.len() - 1).rev() {
+        let (upper, lower) = levels.split_at_mut(l + 1);
+        let (w, h, fine) = &mut upper[l];
+        let (cw, _, coarse) = &lower[0];
+        for i in 0..*h {
+            for j in 0..*w {
+                if fine[i * *w + j].is_nan() {
+                    fine[i * *w + j] = coarse[(i / 2) * cw + j / 2];
+                }
+            }
+        }
+    }
+    let (_, _, filled) = levels.swap_remove(0);
+    Some(filled.into_iter().map(|v| if v.is_nan() { 0.0 } else { v }).collect())
+}

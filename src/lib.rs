@@ -1,6 +1,19 @@
 //! terrachunk: a DEM in, a Chunked-LOD tileset out (Ulrich 2002; DESIGN.md).
+//!
+//! The stages, in the order [`pipeline::build`] calls them: [`dem`] (load) →
+//! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] → [`output`]
+//! (glTF chunks, 3D Tiles index); [`verify`] re-checks a written tileset from
+//! its files alone.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod chunk;
+pub mod config;
 pub mod dem;
 pub mod heightfield;
+pub mod mesh;
+pub mod morph;
+pub mod output;
+pub mod pipeline;
+pub mod quadtree;
+pub mod verify;

@@ -1,1 +1,212 @@
-fn main() {}
+//! The `terrachunk` command: parses the command line and calls the library.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use terrachunk::config::Config;
+use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::verify::{read_chunk, verify};
+
+#[derive(Parser)]
+#[command(name = "terrachunk", version, about = "DEM → Chunked-LOD glTF tileset with a 3D Tiles 1.1 index")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Build a tileset from a DEM (several .hgt tiles or a folder make a mosaic).
+    Build {
+        /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr.
+        #[arg(required = true)]
+        dem: Vec<PathBuf>,
+        /// Output directory.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Settings file (see pipeline.toml); command-line values win.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Leaf accuracy: largest vertical error of the finest level, metres.
+        #[arg(long)]
+        max_error: Option<f64>,
+        /// Largest screen-space error the runtime may use, pixels.
+        #[arg(long)]
+        tau_max: Option<f64>,
+        /// Worker threads (0 = one per core).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Multiply heights by this.
+        #[arg(long)]
+        vertical_scale: Option<f64>,
+        /// Ground spacing in metres: `S` or `SX,SZ`.
+        #[arg(long, value_parser = parse_spacing)]
+        spacing: Option<[f64; 2]>,
+        /// Replace an existing output directory.
+        #[arg(long)]
+        force: bool,
+        /// Also write the summary as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+    /// Re-check a tileset from its files: error bounds, borders, morph targets, structure.
+    Verify {
+        /// Tileset directory.
+        dir: PathBuf,
+        /// DEM to check against (default: the source named in tileset.json).
+        #[arg(long)]
+        dem: Vec<PathBuf>,
+    },
+    /// Print one chunk's level, δ, counts, bounds and morph range.
+    Inspect {
+        /// A chunk file, e.g. out/tiles/0/0/0.glb.
+        glb: PathBuf,
+    },
+}
+
+fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    match v.as_slice() {
+        [a] => Ok([*a, *a]),
+        [a, b] => Ok([*a, *b]),
+        _ => Err("expected S or SX,SZ".into()),
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Build { dem, out, config, max_error, tau_max, threads, vertical_scale, spacing, force, report } => {
+            let mut cfg = match &config {
+                Some(p) => match Config::from_file(p) {
+                    Ok(c) => c,
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return Ok(ExitCode::from(2));
+                    }
+                },
+                None => Config::default(),
+            };
+            if let Some(v) = max_error {
+                cfg.max_error_m = v;
+            }
+            if let Some(v) = tau_max {
+                cfg.tau_max_px = v;
+            }
+            if let Some(v) = threads {
+                cfg.threads = v;
+            }
+            if let Some(v) = vertical_scale {
+                cfg.vertical_scale = v;
+            }
+            if spacing.is_some() {
+                cfg.spacing_m = spacing;
+            }
+            let opts = BuildOptions { inputs: dem, out: out.clone(), force, config: cfg, progress: std::io::stderr().is_terminal() };
+            match build(&opts) {
+                Ok(r) => {
+                    print_summary(&r, &out);
+                    if let Some(p) = report {
+                        let json = serde_json::to_vec_pretty(&r)?;
+                        std::fs::write(&p, json).with_context(|| format!("{}: cannot write report", p.display()))?;
+                    }
+                    Ok(ExitCode::SUCCESS)
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    Ok(ExitCode::from(e.exit_code() as u8))
+                }
+            }
+        }
+        Command::Verify { dir, dem } => {
+            let over = (!dem.is_empty()).then_some(dem.as_slice());
+            let r = match verify(&dir, over) {
+                Ok(r) => r,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
+            println!("{:>5} {:>7} {:>10} {:>12} {:>12}", "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)");
+            for (l, c) in &r.levels {
+                println!("{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}", c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m);
+            }
+            println!("{} shared borders compared", r.borders_checked);
+            if r.failures.is_empty() {
+                println!("OK");
+                Ok(ExitCode::SUCCESS)
+            } else {
+                for f in &r.failures {
+                    println!("FAIL {f}");
+                }
+                Ok(ExitCode::from(1))
+            }
+        }
+        Command::Inspect { glb } => {
+            let c = match read_chunk(&glb) {
+                Ok(c) => c,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
+            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+            for p in c.surface.positions.iter().chain(c.skirt.iter().flat_map(|s| &s.positions)) {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
+            let dys = c.surface.morph_dy.iter().chain(c.skirt.iter().flat_map(|s| &s.morph_dy));
+            let (mlo, mhi) = dys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| (a.min(d), b.max(d)));
+            println!("chunk      {}/{}/{}", c.key.level, c.key.x, c.key.y);
+            println!("delta_m    {}", c.delta_m);
+            println!("footprint  columns {}..={}, rows {}..={}", c.footprint[0], c.footprint[1], c.footprint[2], c.footprint[3]);
+            println!("surface    {} vertices, {} triangles", c.surface.positions.len(), c.surface.triangles.len());
+            if let Some(s) = &c.skirt {
+                println!("skirt      {} vertices, {} triangles", s.positions.len(), s.triangles.len());
+            }
+            println!("bounds     x {:.3}..{:.3}  y {:.3}..{:.3}  z {:.3}..{:.3} (m)", lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]);
+            println!("morph dy   {mlo:.4}..{mhi:.4} m");
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn print_summary(r: &Report, out: &std::path::Path) {
+    println!("{} × {} samples ({} valid), spacing {:.3} × {:.3} m", r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]);
+    println!("{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}", "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)");
+    for l in &r.levels {
+        println!(
+            "{:>5} {:>10.4} {:>7} {:>7} {:>11} {:>9} {:>11.4}",
+            l.level, l.delta_m, l.chunks, l.leaves, l.triangles, l.skirt_triangles, l.max_error_m
+        );
+    }
+    let s = &r.seconds;
+    println!(
+        "{} bytes ({:.3} bytes per input sample) in {}",
+        r.bytes,
+        r.bytes_per_sample,
+        out.display()
+    );
+    println!(
+        "time: load {:.2} s, plan {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
+        s.load, s.plan, s.chunks, r.thread_seconds.mesh, r.thread_seconds.skirt_morph, r.thread_seconds.write, s.index, s.total, r.threads
+    );
+    if let Some(b) = r.peak_rss_bytes {
+        println!("peak memory: {:.1} MB", b as f64 / 1e6);
+    }
+}

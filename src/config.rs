@@ -1,0 +1,98 @@
+//! Settings: `pipeline.toml` and the command line, merged into one validated
+//! [`Config`]. Unknown keys are rejected, so a typo never goes unnoticed.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// δ of the deepest level: the largest vertical error, in metres, of the
+    /// finest chunks against any valid DEM sample. Range: > 0. Default 1.
+    pub max_error_m: f64,
+    /// Largest screen-space error, in pixels, the runtime may use; textures
+    /// are sized from it (T_g ≤ δ/τ_max). Range: > 0. Default 2.
+    pub tau_max_px: f64,
+    /// Worker threads; 0 = one per core. Default 0.
+    pub threads: usize,
+    /// Multiplier applied to every height (e.g. 0.3048 for feet). Range:
+    /// finite, ≠ 0. Default 1.
+    pub vertical_scale: f64,
+    /// Override the ground spacing, metres `[s_x, s_z]` (> 0). Default: the
+    /// file's own (1 m for files without a georeference).
+    pub spacing_m: Option<[f64; 2]>,
+    /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=250
+    /// (a 251 × 251 chunk at full density plus skirts still fits u16
+    /// indices). Default 200.
+    pub leaf_cells: u32,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config { max_error_m: 1.0, tau_max_px: 2.0, threads: 0, vertical_scale: 1.0, spacing_m: None, leaf_cells: 200 }
+    }
+}
+
+/// A setting that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The config file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The config file is not valid TOML or has an unknown key.
+    #[error("{path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said (names the key).
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("{key} = {value}: {why}")]
+    Invalid {
+        /// The setting.
+        key: &'static str,
+        /// Its value.
+        value: String,
+        /// The allowed range.
+        why: &'static str,
+    },
+}
+
+impl Config {
+    /// Reads a `pipeline.toml`.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
+        toml::from_str(&text).map_err(|e| ConfigError::Parse { path: path.into(), message: e.message().to_string() })
+    }
+
+    /// Checks every value's range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |key, value: String, why| Err(ConfigError::Invalid { key, value, why });
+        if !(self.max_error_m > 0.0 && self.max_error_m.is_finite()) {
+            return bad("max_error_m", self.max_error_m.to_string(), "must be a finite number of metres > 0");
+        }
+        if !(self.tau_max_px > 0.0 && self.tau_max_px.is_finite()) {
+            return bad("tau_max_px", self.tau_max_px.to_string(), "must be a finite number of pixels > 0");
+        }
+        if !(self.vertical_scale.is_finite() && self.vertical_scale != 0.0) {
+            return bad("vertical_scale", self.vertical_scale.to_string(), "must be finite and not 0");
+        }
+        if let Some(s) = self.spacing_m
+            && !s.iter().all(|v| v.is_finite() && *v > 0.0)
+        {
+            return bad("spacing_m", format!("{s:?}"), "must be finite metres > 0");
+        }
+        if !(2..=250).contains(&self.leaf_cells) {
+            return bad("leaf_cells", self.leaf_cells.to_string(), "must be within 2..=250 cells");
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,1 @@
+//! Check: re-measure a tileset from its files (see verify).

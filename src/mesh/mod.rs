@@ -1,0 +1,93 @@
+//! Mesh: per chunk, a TIN within δ(L) of every valid sample, nested in its
+//! parent's ([`decimate`]); then skirts on its borders ([`skirt`]); and the
+//! independent re-measurement of both ([`check`]).
+
+pub mod check;
+pub mod decimate;
+pub mod skirt;
+
+use crate::quadtree::{ChunkKey, Span};
+
+/// A vertex of a chunk's TIN, in grid coordinates (column `x`, row `z`; may
+/// be fractional where a dividing line crossed a parent edge) and metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshVertex {
+    /// Column coordinate (east), in samples.
+    pub x: f64,
+    /// Row coordinate (south), in samples.
+    pub z: f64,
+    /// Height in metres (the DEM sample at sample positions).
+    pub h: f64,
+}
+
+/// One chunk's surface as the mesher leaves it: every triangle of the
+/// footprint's triangulation (the children refine all of them), with a flag
+/// saying which ones are written (those that cover at least one valid sample).
+#[derive(Clone, Debug)]
+pub struct ChunkMesh {
+    /// Which chunk.
+    pub key: ChunkKey,
+    /// Footprint in samples, closed: `((x0, x1), (z0, z1))`.
+    pub footprint: (Span, Span),
+    /// δ(L) this mesh was built to, metres.
+    pub delta_m: f64,
+    /// Vertices.
+    pub vertices: Vec<MeshVertex>,
+    /// Counter-clockwise (in x-east, z-south grid space) triangles.
+    pub triangles: Vec<[u32; 3]>,
+    /// `kept[t]`: triangle `t` covers a valid sample and is written.
+    pub kept: Vec<bool>,
+    /// Largest |surface − sample| over the footprint's valid samples, metres.
+    pub max_error_m: f64,
+    /// Largest minus smallest valid height in the footprint, metres.
+    pub relief_m: f64,
+}
+
+impl ChunkMesh {
+    /// Whether this mesh already meets `delta_m` with room for f32 output.
+    pub fn meets(&self, delta_m: f64) -> bool {
+        self.max_error_m <= decimate::build_target(delta_m, self.relief_m)
+    }
+}
+
+/// Unit normal of the DEM at grid point (x, z), from central differences of
+/// the nearest sample (one-sided at edges and next to nodata).
+pub fn dem_normal(grid: &decimate::Grid, spacing_m: [f64; 2], x: f64, z: f64) -> [f32; 3] {
+    let j = (x.round().max(0.0) as usize).min(grid.width - 1);
+    let i = (z.round().max(0.0) as usize).min(grid.height - 1);
+    let at = |i: usize, j: usize| {
+        let h = grid.heights[i * grid.width + j];
+        (!h.is_nan()).then_some(f64::from(h))
+    };
+    let slope = |lo: Option<f64>, mid: Option<f64>, hi: Option<f64>, step: f64| match (lo, mid, hi) {
+        (Some(a), _, Some(b)) => (b - a) / (2.0 * step),
+        (Some(a), Some(m), None) => (m - a) / step,
+        (None, Some(m), Some(b)) => (b - m) / step,
+        _ => 0.0,
+    };
+    let mid = at(i, j);
+    let dx = slope(j.checked_sub(1).and_then(|j| at(i, j)), mid, (j + 1 < grid.width).then(|| at(i, j + 1)).flatten(), spacing_m[0]);
+    let dz = slope(i.checked_sub(1).and_then(|i| at(i, j)), mid, (i + 1 < grid.height).then(|| at(i + 1, j)).flatten(), spacing_m[1]);
+    let n = [-dx, 1.0, -dz];
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    n.map(|c| (c / len) as f32)
+}
+
+/// What can stop the mesher.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// A chunk needs more vertices than u16 indices allow to meet its δ.
+    #[error("chunk {level}/{x}/{y} needs more than {limit} vertices to stay within {delta_m} m")]
+    TooDense {
+        /// Level.
+        level: u32,
+        /// Column.
+        x: u32,
+        /// Row.
+        y: u32,
+        /// δ it had to meet.
+        delta_m: f64,
+        /// The vertex limit.
+        limit: usize,
+    },
+}

@@ -1,0 +1,122 @@
+//! Skirts: a vertical strip hanging from each border of a chunk (Ulrich 2002,
+//! §4.2) so that no crack shows between chunks of different levels.
+//!
+//! How deep: along a border, any neighbour at level L−1 or finer, in any
+//! morph state, shows a surface within δ(L−2) of each valid sample of the
+//! border line (a chunk at level L−1 blending toward its parent is within
+//! δ(L−2); finer ones are closer). Each bottom vertex therefore sits at the
+//! lowest of (the valid samples, the vertex heights and their parent heights)
+//! between its two neighbouring border vertices, minus δ(max(L−2, 0)).
+//! Between two bottom vertices the bottom is linear and each end is below
+//! every sample of both windows, so the whole strip reaches below any such
+//! neighbour, and no lower. Bottom vertices do not morph (delta 0): they are
+//! already below every morph state.
+
+use crate::chunk::Part;
+use crate::mesh::decimate::Grid;
+use crate::quadtree::Span;
+
+/// Builds the skirt of a chunk from its finished surface part.
+///
+/// `grid_xz[v]` are the surface vertices' grid coordinates, `parent_h[v]`
+/// their heights on the parent surface; `margin_m` is δ(max(L−2, 0)).
+pub fn build_skirt(
+    grid: &Grid,
+    footprint: (Span, Span),
+    surface: &Part,
+    grid_xz: &[(f64, f64)],
+    parent_h: &[f64],
+    margin_m: f64,
+) -> Part {
+    let ((x0, x1), (z0, z1)) = footprint;
+    let mut edge_set = std::collections::HashSet::new();
+    for t in surface.indices.chunks_exact(3) {
+        for e in 0..3 {
+            let (a, b) = (t[e], t[(e + 1) % 3]);
+            edge_set.insert((a.min(b), a.max(b)));
+        }
+    }
+    let mut out = Part::default();
+    // (vertical?, fixed coordinate, outward direction sign)
+    let sides = [(false, z0, -1.0), (false, z1, 1.0), (true, x0, -1.0), (true, x1, 1.0)];
+    for (vertical, coord, _sign) in sides {
+        let c = f64::from(coord);
+        let mut on: Vec<(f64, u32)> = grid_xz
+            .iter()
+            .enumerate()
+            .filter_map(|(k, &(x, z))| {
+                let (along, across) = if vertical { (z, x) } else { (x, z) };
+                (across == c).then_some((along, k as u32))
+            })
+            .collect();
+        on.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if on.len() < 2 {
+            continue;
+        }
+        let sample = |t: i64| -> f32 {
+            let (j, i) = if vertical { (coord as usize, t as usize) } else { (t as usize, coord as usize) };
+            grid.heights[i * grid.width + j]
+        };
+        let bottoms: Vec<f64> = (0..on.len())
+            .map(|k| {
+                let lo = on[k.saturating_sub(1)].0;
+                let hi = on[(k + 1).min(on.len() - 1)].0;
+                let mut m = f64::INFINITY;
+                for w in on[k.saturating_sub(1)..=(k + 1).min(on.len() - 1)].iter() {
+                    m = m.min(surface.positions[w.1 as usize][1]).min(parent_h[w.1 as usize]);
+                }
+                for t in (lo.ceil() as i64)..=(hi.floor() as i64) {
+                    let h = sample(t);
+                    if !h.is_nan() {
+                        m = m.min(f64::from(h));
+                    }
+                }
+                m - margin_m
+            })
+            .collect();
+        let base = out.positions.len() as u32;
+        for (k, &(_, v)) in on.iter().enumerate() {
+            let p = surface.positions[v as usize];
+            let n = surface.normals[v as usize];
+            out.positions.push(p);
+            out.normals.push(n);
+            out.morph_dy.push(surface.morph_dy[v as usize]);
+            out.positions.push([p[0], bottoms[k], p[2]]);
+            out.normals.push(n);
+            out.morph_dy.push(0.0);
+        }
+        for k in 0..on.len() - 1 {
+            let (a, b) = (on[k].1, on[k + 1].1);
+            if !edge_set.contains(&(a.min(b), a.max(b))) {
+                continue; // that stretch of border is over nodata: no surface, no skirt
+            }
+            let (ta, ba, tb, bb) = (base + 2 * k as u32, base + 2 * k as u32 + 1, base + 2 * k as u32 + 2, base + 2 * k as u32 + 3);
+            out.indices.extend_from_slice(&[ta, ba, tb, tb, ba, bb]);
+        }
+    }
+    // Drop vertices no triangle uses (border stretches over nodata).
+    compact(out)
+}
+
+/// Removes vertices no triangle references, keeping order.
+pub fn compact(mut p: Part) -> Part {
+    let mut remap = vec![u32::MAX; p.positions.len()];
+    let mut n = 0u32;
+    for &i in &p.indices {
+        if remap[i as usize] == u32::MAX {
+            remap[i as usize] = 0;
+        }
+    }
+    let mut out = Part::default();
+    for (k, r) in remap.iter_mut().enumerate() {
+        if *r != u32::MAX {
+            *r = n;
+            n += 1;
+            out.positions.push(p.positions[k]);
+            out.normals.push(p.normals[k]);
+            out.morph_dy.push(p.morph_dy[k]);
+        }
+    }
+    out.indices = p.indices.drain(..).map(|i| remap[i as usize]).collect();
+    out
+}

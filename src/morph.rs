@@ -1,0 +1,99 @@
+//! Morph: each vertex's height on the parent chunk's surface.
+//!
+//! A child's triangles refine its parent's (decimate.rs keeps every parent
+//! edge as a constraint), so moving each child vertex to the parent surface
+//! at its (x, z) reproduces the parent exactly, everywhere (DESIGN.md,
+//! promise 3). The glTF morph target stores `parent − own` as a y delta.
+
+use crate::mesh::{ChunkMesh, MeshVertex};
+
+/// Finds the triangle of a mesh under a point, with a bucket grid.
+pub struct SurfaceLocator<'m> {
+    verts: &'m [MeshVertex],
+    tris: &'m [[u32; 3]],
+    origin: (f64, f64),
+    cell: f64,
+    nx: usize,
+    nz: usize,
+    buckets: Vec<Vec<u32>>,
+}
+
+impl<'m> SurfaceLocator<'m> {
+    /// Indexes all of `mesh`'s triangles (written or not).
+    pub fn new(mesh: &'m ChunkMesh) -> Self {
+        Self::from_parts(&mesh.vertices, &mesh.triangles)
+    }
+
+    /// Indexes the given triangles.
+    pub fn from_parts(verts: &'m [MeshVertex], tris: &'m [[u32; 3]]) -> Self {
+        let (mut x0, mut z0, mut x1, mut z1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for v in verts {
+            x0 = x0.min(v.x);
+            z0 = z0.min(v.z);
+            x1 = x1.max(v.x);
+            z1 = z1.max(v.z);
+        }
+        let area = ((x1 - x0) * (z1 - z0)).max(1.0);
+        let cell = (area / (tris.len().max(1) as f64)).sqrt().max(1e-9) * 2.0;
+        let nx = (((x1 - x0) / cell) as usize + 1).min(4096);
+        let nz = (((z1 - z0) / cell) as usize + 1).min(4096);
+        let mut buckets = vec![Vec::new(); nx * nz];
+        let b = |v: f64, o: f64, n: usize| (((v - o) / cell).floor().max(0.0) as usize).min(n - 1);
+        for (t, tri) in tris.iter().enumerate() {
+            let p = tri.map(|k| verts[k as usize]);
+            let (lx, hx) = (p[0].x.min(p[1].x).min(p[2].x), p[0].x.max(p[1].x).max(p[2].x));
+            let (lz, hz) = (p[0].z.min(p[1].z).min(p[2].z), p[0].z.max(p[1].z).max(p[2].z));
+            for bz in b(lz, z0, nz)..=b(hz, z0, nz) {
+                for bx in b(lx, x0, nx)..=b(hx, x0, nx) {
+                    buckets[bz * nx + bx].push(t as u32);
+                }
+            }
+        }
+        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, buckets }
+    }
+
+    /// The triangle containing (x, z) (the least-outside one if rounding
+    /// puts the point just outside all) and the interpolated height there.
+    pub fn locate(&self, x: f64, z: f64) -> Option<(u32, f64)> {
+        let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
+        let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
+        // Prefer, among triangles that contain the point, the one with the
+        // largest area: on an edge shared with a zero-width sliver, the
+        // sliver's plane is meaningless.
+        let mut best: Option<(f64, f64, u32, f64)> = None; // (outside, -area, t, h)
+        for &t in bucket {
+            let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+            let (outside, h) = barycentric(&a, &p, &q, x, z);
+            let outside = if outside < 1e-9 { 0.0 } else { outside };
+            let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
+            if best.is_none_or(|b| (outside, -area) < (b.0, b.1)) {
+                best = Some((outside, -area, t, h));
+            }
+        }
+        let best = best.map(|b| (b.0, b.2, b.3));
+        best.filter(|b| b.0 < 1e-6).map(|b| (b.1, b.2))
+    }
+}
+
+/// How far outside triangle (a, b, c) the point is (0 inside, in barycentric
+/// units) and the linear interpolation of the heights there.
+pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f64) -> (f64, f64) {
+    let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
+    if det.abs() < 1e-300 {
+        return (f64::INFINITY, a.h);
+    }
+    let l1 = ((x - a.x) * (c.z - a.z) - (c.x - a.x) * (z - a.z)) / det;
+    let l2 = ((b.x - a.x) * (z - a.z) - (x - a.x) * (b.z - a.z)) / det;
+    let l0 = 1.0 - l1 - l2;
+    ((-l0).max(-l1).max(-l2).max(0.0), l0 * a.h + l1 * b.h + l2 * c.h)
+}
+
+/// Height of `parent`'s surface under each of `points` (grid x, z), or the
+/// point's own height for the top level (no parent: delta 0).
+pub fn parent_heights(parent: Option<&ChunkMesh>, points: &[MeshVertex]) -> Vec<f64> {
+    let Some(parent) = parent else {
+        return points.iter().map(|p| p.h).collect();
+    };
+    let loc = SurfaceLocator::new(parent);
+    points.iter().map(|p| loc.locate(p.x, p.z).map_or(p.h, |(_, h)| h)).collect()
+}

@@ -1,0 +1,179 @@
+//! Write one chunk as a binary glTF 2.0 (.glb), per the output contract in
+//! DESIGN.md: y-up metres, one node with an f64 `translation`, chunk-local
+//! f32 positions, u16 indices reordered for the vertex cache and vertex fetch
+//! (meshoptimizer), and one "parent" morph target per primitive.
+//!
+//! The JSON is built with `serde_json` directly rather than `gltf-json`'s
+//! builder types: the contract's extras (`role`, `targetNames`, the chunk
+//! record) are plain JSON, and the whole document is a few dozen lines.
+//! Files are read back with the `gltf` crate (verify, inspect, tests).
+
+use serde_json::{Value, json};
+
+use crate::chunk::{Chunk, Part};
+
+/// What the writer needs besides the chunk itself.
+pub struct GlbContext<'a> {
+    /// `[s_x, s_z]` in metres (recorded in the chunk extras).
+    pub spacing_m: [f64; 2],
+    /// Generator string for `asset.generator`.
+    pub generator: &'a str,
+}
+
+/// The chunk-local origin: the chunk's west/north corner at its lowest point.
+pub fn chunk_origin(chunk: &Chunk) -> [f64; 3] {
+    let mut o = [f64::INFINITY; 3];
+    for p in chunk.surface.positions.iter().chain(&chunk.skirt.positions) {
+        for a in 0..3 {
+            o[a] = o[a].min(p[a]);
+        }
+    }
+    o
+}
+
+/// Encodes `chunk` as a .glb file.
+pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
+    let origin = chunk_origin(chunk);
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views: Vec<Value> = Vec::new();
+    let mut accessors: Vec<Value> = Vec::new();
+    let mut prims: Vec<Value> = Vec::new();
+    for (role, part) in [("surface", &chunk.surface), ("skirt", &chunk.skirt)] {
+        if part.indices.is_empty() {
+            continue;
+        }
+        let p = optimise(part);
+        let local: Vec<[f32; 3]> =
+            p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
+        let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
+        let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
+        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, &p.normals);
+        let dlt = push_vec3(&mut bin, &mut views, &mut accessors, &delta);
+        let idx = push_indices(&mut bin, &mut views, &mut accessors, &p.indices);
+        prims.push(json!({
+            "attributes": {"POSITION": pos, "NORMAL": nrm},
+            "indices": idx,
+            "material": 0,
+            "mode": 4,
+            "targets": [{"POSITION": dlt}],
+            "extras": {"role": role},
+        }));
+    }
+    let k = chunk.key;
+    let ((x0, x1), (z0, z1)) = chunk.footprint;
+    let doc = json!({
+        "asset": {"version": "2.0", "generator": ctx.generator},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{
+            "name": format!("chunk {}/{}/{}", k.level, k.x, k.y),
+            "mesh": 0,
+            "translation": origin,
+            "extras": {"terrachunk": {
+                "level": k.level, "x": k.x, "y": k.y,
+                "delta_m": chunk.delta_m,
+                "max_error_m": chunk.max_error_m,
+                "footprint": {"x0": x0, "x1": x1, "z0": z0, "z1": z1},
+                "spacing_m": ctx.spacing_m,
+            }},
+        }],
+        "meshes": [{
+            "name": format!("terrain {}/{}/{}", k.level, k.x, k.y),
+            "primitives": prims,
+            "weights": [0.0],
+            "extras": {"targetNames": ["parent"]},
+        }],
+        "materials": [{
+            "name": "terrain",
+            "pbrMetallicRoughness": {"baseColorFactor": [0.55, 0.52, 0.45, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            "doubleSided": true,
+        }],
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [{"byteLength": bin.len()}],
+    });
+    glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin)
+}
+
+/// Vertex-cache then vertex-fetch order (meshoptimizer); same triangles.
+fn optimise(p: &Part) -> Part {
+    let n = p.positions.len();
+    let indices = meshopt::optimize_vertex_cache(&p.indices, n);
+    let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
+    let used = remap.iter().filter(|&&r| r != u32::MAX).count();
+    let mut out = Part {
+        positions: vec![[0.0; 3]; used],
+        normals: vec![[0.0; 3]; used],
+        morph_dy: vec![0.0; used],
+        indices: indices.iter().map(|&i| remap[i as usize]).collect(),
+    };
+    for (old, &new) in remap.iter().enumerate() {
+        if new != u32::MAX {
+            out.positions[new as usize] = p.positions[old];
+            out.normals[new as usize] = p.normals[old];
+            out.morph_dy[new as usize] = p.morph_dy[old];
+        }
+    }
+    out
+}
+
+fn align4(bin: &mut Vec<u8>) {
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+}
+
+fn push_vec3(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, data: &[[f32; 3]]) -> usize {
+    align4(bin);
+    let offset = bin.len();
+    let mut min = [f32::INFINITY; 3];
+    let mut max = [f32::NEG_INFINITY; 3];
+    for v in data {
+        for a in 0..3 {
+            bin.extend_from_slice(&v[a].to_le_bytes());
+            min[a] = min[a].min(v[a]);
+            max[a] = max[a].max(v[a]);
+        }
+    }
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len() * 12, "target": 34962}));
+    accessors.push(json!({
+        "bufferView": views.len() - 1, "componentType": 5126, "count": data.len(),
+        "type": "VEC3", "min": min, "max": max,
+    }));
+    accessors.len() - 1
+}
+
+fn push_indices(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, idx: &[u32]) -> usize {
+    align4(bin);
+    let offset = bin.len();
+    for &i in idx {
+        bin.extend_from_slice(&(i as u16).to_le_bytes());
+    }
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": idx.len() * 2, "target": 34963}));
+    accessors.push(json!({
+        "bufferView": views.len() - 1, "componentType": 5123, "count": idx.len(), "type": "SCALAR",
+    }));
+    accessors.len() - 1
+}
+
+/// Packs a JSON document and a binary buffer into the GLB container.
+fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let pad = |n: usize| (4 - n % 4) % 4;
+    let (jl, bl) = (json.len() + pad(json.len()), bin.len() + pad(bin.len()));
+    let total = 12 + 8 + jl + if bl > 0 { 8 + bl } else { 0 };
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(jl as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(json);
+    out.resize(out.len() + pad(json.len()), b' ');
+    if bl > 0 {
+        out.extend_from_slice(&(bl as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(bin);
+        out.resize(out.len() + pad(bin.len()), 0);
+    }
+    out
+}

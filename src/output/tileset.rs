@@ -1,0 +1,174 @@
+//! Write the index: a 3D Tiles 1.1 `tileset.json` over the chunk tree.
+//!
+//! glTF content is y-up; 3D Tiles is z-up and rotates y-up glTF by +90° about
+//! x when loading it (3D Tiles 1.1, "glTF transforms"), so a world point
+//! (x, y, z) of a chunk sits at (x, −z, y) in tileset coordinates: east,
+//! north, up. Bounding boxes are given in that frame. What 3D Tiles does not
+//! carry (levels, morph, skirts, τ_max) goes into `extras.terrachunk`, whose
+//! shape is the types below and whose JSON Schemas in `schemas/` are
+//! generated from them.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+use crate::heightfield::Georef;
+use crate::quadtree::{ChunkKey, ChunkTree};
+
+/// `extras.terrachunk` on the tileset: what a client needs beyond 3D Tiles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TilesetExtras {
+    /// terrachunk version that wrote the tileset.
+    pub generator: String,
+    /// Source grid size in samples.
+    pub grid: GridSize,
+    /// Ground distance between samples, metres: `[s_x, s_z]`.
+    pub spacing_m: [f64; 2],
+    /// Height multiplier applied on load (1 = the file's metres).
+    pub vertical_scale: f64,
+    /// δ of the deepest level, metres (the user's accuracy target).
+    pub max_error_m: f64,
+    /// Largest screen-space error, pixels, the runtime may use.
+    pub tau_max_px: f64,
+    /// Number of levels the tree may have (deepest level + 1).
+    pub levels: u32,
+    /// δ(L) for every level, metres; each half the one before.
+    pub delta_m: Vec<f64>,
+    /// Source file name(s), as given on the command line.
+    pub source: Vec<String>,
+    /// Georeference of the source, and the local tangent plane if geographic.
+    pub georef: Georef,
+    /// How to read the morph targets.
+    pub morph: MorphConvention,
+    /// How deep the skirts hang.
+    pub skirt: String,
+}
+
+/// Grid size in samples.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GridSize {
+    /// Samples per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+}
+
+/// The morph-target convention of every chunk.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MorphConvention {
+    /// Name of the morph target (also in `mesh.extras.targetNames`).
+    pub target: String,
+    /// What the target holds.
+    pub delta: String,
+    /// The blend schedule that keeps the screen error bound, and its guarantee.
+    pub schedule: String,
+}
+
+/// `extras.terrachunk` on every tile.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TileExtras {
+    /// Level, 0 = top.
+    pub level: u32,
+    /// Column among the level's chunks (east).
+    pub x: u32,
+    /// Row among the level's chunks (south).
+    pub y: u32,
+    /// δ(L), metres; also the tile's geometricError.
+    pub delta_m: f64,
+}
+
+/// One written chunk, as the index needs it.
+#[derive(Clone, Debug)]
+pub struct TileRecord {
+    /// Which chunk.
+    pub key: ChunkKey,
+    /// World-space box (glTF frame, metres): min and max corners.
+    pub min: [f64; 3],
+    /// Max corner.
+    pub max: [f64; 3],
+    /// δ(L).
+    pub delta_m: f64,
+}
+
+/// Path of a chunk's file relative to the tileset root.
+pub fn tile_uri(k: ChunkKey) -> String {
+    format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y)
+}
+
+/// 3D Tiles box (z-up frame) for a glTF-frame world box.
+pub fn tiles_box(min: [f64; 3], max: [f64; 3]) -> [f64; 12] {
+    let c = [0, 1, 2].map(|a| (min[a] + max[a]) / 2.0);
+    let h = [0, 1, 2].map(|a| ((max[a] - min[a]) / 2.0).max(1e-3));
+    [c[0], -c[2], c[1], h[0], 0.0, 0.0, 0.0, h[2], 0.0, 0.0, 0.0, h[1]]
+}
+
+/// Builds the `tileset.json` document. `records` must be sorted by key.
+pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetExtras) -> Value {
+    let find = |k: ChunkKey| records.binary_search_by(|r| r.key.cmp(&k)).ok().map(|i| &records[i]);
+    fn tile<'r>(tree: &ChunkTree, r: &'r TileRecord, find: &dyn Fn(ChunkKey) -> Option<&'r TileRecord>) -> (Value, [f64; 3], [f64; 3]) {
+        let (mut lo, mut hi) = (r.min, r.max);
+        let mut children = Vec::new();
+        for c in tree.children(r.key) {
+            if let Some(cr) = find(c) {
+                let (v, clo, chi) = tile(tree, cr, find);
+                for a in 0..3 {
+                    lo[a] = lo[a].min(clo[a]);
+                    hi[a] = hi[a].max(chi[a]);
+                }
+                children.push(v);
+            }
+        }
+        let extras = TileExtras { level: r.key.level, x: r.key.x, y: r.key.y, delta_m: r.delta_m };
+        let mut v = json!({
+            "boundingVolume": {"box": tiles_box(lo, hi)},
+            "geometricError": r.delta_m,
+            "refine": "REPLACE",
+            "content": {"uri": tile_uri(r.key)},
+            "extras": {"terrachunk": extras},
+        });
+        if !children.is_empty() {
+            v["children"] = Value::Array(children);
+        }
+        (v, lo, hi)
+    }
+    let tops: Vec<(Value, [f64; 3], [f64; 3])> =
+        tree.roots().into_iter().filter_map(find).map(|r| tile(tree, r, &find)).collect();
+    let delta0 = tree.delta_m[0];
+    let root = if tops.len() == 1 {
+        tops.into_iter().next().expect("one top").0
+    } else {
+        // A non-square grid: a content-less root over its near-square cells.
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for (_, l, h) in &tops {
+            for a in 0..3 {
+                lo[a] = lo[a].min(l[a]);
+                hi[a] = hi[a].max(h[a]);
+            }
+        }
+        json!({
+            "boundingVolume": {"box": tiles_box(lo, hi)},
+            "geometricError": 2.0 * delta0,
+            "refine": "REPLACE",
+            "children": tops.into_iter().map(|t| t.0).collect::<Vec<_>>(),
+        })
+    };
+    json!({
+        "asset": {"version": "1.1", "generator": extras.generator},
+        "geometricError": 4.0 * delta0,
+        "root": root,
+        "extras": {"terrachunk": extras},
+    })
+}
+
+/// The JSON Schemas of the extras, as `(file name, pretty JSON)`.
+pub fn extras_schemas() -> Vec<(&'static str, String)> {
+    let pretty = |s: schemars::Schema| serde_json::to_string_pretty(&s).expect("schema is JSON") + "\n";
+    vec![
+        ("tileset-extras.schema.json", pretty(schemars::schema_for!(TilesetExtras))),
+        ("tile-extras.schema.json", pretty(schemars::schema_for!(TileExtras))),
+    ]
+}

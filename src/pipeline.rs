@@ -1,0 +1,461 @@
+//! The orchestrator: load → plan → mesh → skirt → morph → write, one call
+//! each, with plain data between them (DESIGN.md, "The pipeline").
+//!
+//! The tree is built top-down, one level at a time: a chunk needs its
+//! parent's mesh, and siblings are independent, so each level's chunks run in
+//! parallel (rayon) and are collected in key order. Output therefore does not
+//! depend on the thread count. Everything is written into a temporary
+//! directory beside the target, renamed into place only when complete.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::chunk::{Chunk, Part};
+use crate::config::{Config, ConfigError};
+use crate::dem::{self, DemError, LoadOptions};
+use crate::heightfield::{Heightfield, void_fill};
+use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use crate::mesh::skirt::build_skirt;
+use crate::mesh::{ChunkMesh, MeshError, dem_normal};
+use crate::morph::parent_heights;
+use crate::output::gltf::{GlbContext, encode_glb};
+use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
+use crate::quadtree::{ChunkKey, ChunkTree};
+
+/// What `build` needs.
+#[derive(Clone, Debug)]
+pub struct BuildOptions {
+    /// DEM file(s); several `.hgt` tiles (or one folder of them) make a mosaic.
+    pub inputs: Vec<PathBuf>,
+    /// Output directory (the tileset root).
+    pub out: PathBuf,
+    /// Replace an existing output directory.
+    pub force: bool,
+    /// Validated settings.
+    pub config: Config,
+    /// Draw a progress bar (when stderr is a terminal).
+    pub progress: bool,
+}
+
+/// Why a build failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The DEM could not be used.
+    #[error(transparent)]
+    Dem(#[from] DemError),
+    /// A setting is out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The output directory exists and `--force` was not given.
+    #[error("{0}: already exists (use --force to replace it)")]
+    OutputExists(PathBuf),
+    /// A chunk could not meet its δ within u16 indices even with extra levels.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// Writing failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+impl BuildError {
+    /// Process exit code: 2 for bad input or settings, 1 otherwise.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
+            BuildError::Mesh(_) | BuildError::Io { .. } => 1,
+        }
+    }
+}
+
+/// Per-level figures of a build.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct LevelReport {
+    /// Level.
+    pub level: u32,
+    /// δ(L), metres.
+    pub delta_m: f64,
+    /// Chunks written.
+    pub chunks: usize,
+    /// Surface triangles.
+    pub triangles: usize,
+    /// Skirt triangles.
+    pub skirt_triangles: usize,
+    /// Surface vertices.
+    pub vertices: usize,
+    /// Largest measured error of any chunk of the level, metres.
+    pub max_error_m: f64,
+    /// Chunks of this level that have no children (already within max_error).
+    pub leaves: usize,
+}
+
+/// What a build did and cost.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    /// Input samples (width × height).
+    pub samples: usize,
+    /// Samples holding data.
+    pub valid_samples: usize,
+    /// Grid size.
+    pub grid: [usize; 2],
+    /// Spacing, metres.
+    pub spacing_m: [f64; 2],
+    /// Levels by level.
+    pub levels: Vec<LevelReport>,
+    /// Bytes written (all .glb plus tileset.json).
+    pub bytes: u64,
+    /// Bytes per input sample.
+    pub bytes_per_sample: f64,
+    /// Wall seconds per stage: load, plan, mesh (incl. skirt, morph, write), index.
+    pub seconds: StageTimes,
+    /// Thread-seconds spent inside each per-chunk stage (summed over threads).
+    pub thread_seconds: ChunkStageTimes,
+    /// Peak resident memory, bytes (Linux VmHWM), if known.
+    pub peak_rss_bytes: Option<u64>,
+    /// Threads used.
+    pub threads: usize,
+    /// Levels added below the size-based depth so coarse chunks fit u16.
+    pub extra_levels: u32,
+}
+
+/// Wall time per pipeline stage, seconds.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StageTimes {
+    /// Reading the DEM.
+    pub load: f64,
+    /// Void fill and tree plan.
+    pub plan: f64,
+    /// All chunks: mesh, skirt, morph, encode, write.
+    pub chunks: f64,
+    /// tileset.json and the final rename.
+    pub index: f64,
+    /// Everything.
+    pub total: f64,
+}
+
+/// Thread-seconds per per-chunk stage.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ChunkStageTimes {
+    /// Greedy insertion.
+    pub mesh: f64,
+    /// Normals, morph targets and skirts.
+    pub skirt_morph: f64,
+    /// glTF encoding and file writes.
+    pub write: f64,
+}
+
+/// Runs the whole pipeline. On error nothing is left at `opts.out`.
+pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
+    let t0 = Instant::now();
+    opts.config.validate()?;
+    if opts.out.exists() && !opts.force {
+        return Err(BuildError::OutputExists(opts.out.clone()));
+    }
+    let cfg = &opts.config;
+    let hf = dem::load(
+        &opts.inputs,
+        &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m },
+    )?;
+    let t_load = t0.elapsed();
+    let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+
+    let tmp = temp_dir_for(&opts.out);
+    let result = pool.install(|| build_into(&hf, opts, &tmp));
+    let (mut report, tree, records, t_plan, t_chunks) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+    };
+    let t_idx = Instant::now();
+    let finish = || -> Result<u64, BuildError> {
+        let extras = tileset_extras(&hf, opts, &tree);
+        let doc = tileset_json(&tree, &records, &extras);
+        let bytes = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
+        let path = tmp.join("tileset.json");
+        std::fs::write(&path, &bytes).map_err(|source| BuildError::Io { path, source })?;
+        if opts.out.exists() {
+            std::fs::remove_dir_all(&opts.out).map_err(|source| BuildError::Io { path: opts.out.clone(), source })?;
+        }
+        std::fs::rename(&tmp, &opts.out).map_err(|source| BuildError::Io { path: opts.out.clone(), source })?;
+        Ok(bytes.len() as u64)
+    };
+    let index_bytes = match finish() {
+        Ok(b) => b,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+    };
+    report.bytes += index_bytes;
+    report.bytes_per_sample = report.bytes as f64 / report.samples as f64;
+    report.threads = threads;
+    report.seconds = StageTimes {
+        load: t_load.as_secs_f64(),
+        plan: t_plan.as_secs_f64(),
+        chunks: t_chunks.as_secs_f64(),
+        index: t_idx.elapsed().as_secs_f64(),
+        total: t0.elapsed().as_secs_f64(),
+    };
+    report.peak_rss_bytes = peak_rss();
+    Ok(report)
+}
+
+type Built = (Report, ChunkTree, Vec<TileRecord>, Duration, Duration);
+
+fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
+    let t = Instant::now();
+    let filled = void_fill(hf);
+    let grid = Grid { width: hf.width, height: hf.height, heights: &hf.heights, filled: filled.as_deref() };
+    let t_plan = t.elapsed();
+    let t = Instant::now();
+    // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
+    // relief) gets more room by deepening the tree, which doubles every δ.
+    let mut extra = 0;
+    loop {
+        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.leaf_cells, extra);
+        let _ = std::fs::remove_dir_all(tmp);
+        std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
+        match build_levels(hf, &grid, &tree, opts, tmp) {
+            Ok((mut report, records)) => {
+                report.extra_levels = extra;
+                return Ok((report, tree, records, t_plan, t.elapsed()));
+            }
+            Err(BuildError::Mesh(e)) if (tree.xs.len() < 31) && tree_can_deepen(&tree) => {
+                let _ = e;
+                extra += 1;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+fn tree_can_deepen(tree: &ChunkTree) -> bool {
+    let d = tree.depth() as usize;
+    tree.xs[d].iter().any(|s| s.1 - s.0 >= 2) || tree.zs[d].iter().any(|s| s.1 - s.0 >= 2)
+}
+
+struct Timers {
+    mesh: AtomicU64,
+    skirt_morph: AtomicU64,
+    write: AtomicU64,
+}
+
+impl Timers {
+    fn add(a: &AtomicU64, since: Instant) {
+        a.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
+
+fn build_levels(
+    hf: &Heightfield,
+    grid: &Grid,
+    tree: &ChunkTree,
+    opts: &BuildOptions,
+    tmp: &Path,
+) -> Result<(Report, Vec<TileRecord>), BuildError> {
+    let cfg = &opts.config;
+    let timers = Timers { mesh: AtomicU64::new(0), skirt_morph: AtomicU64::new(0), write: AtomicU64::new(0) };
+    let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
+    let ctx = GlbContext { spacing_m: hf.spacing_m, generator: &generator };
+    let has_voids = grid.filled.is_some();
+    let mut report = Report {
+        samples: hf.width * hf.height,
+        valid_samples: hf.valid_count(),
+        grid: [hf.width, hf.height],
+        spacing_m: hf.spacing_m,
+        ..Report::default()
+    };
+    let mut records = Vec::new();
+    let mut bytes = AtomicU64::new(0);
+    // (key, index of the parent in the previous level's meshes)
+    let mut work: Vec<(ChunkKey, Option<usize>)> =
+        tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (k, None)).collect();
+    let mut parents: Vec<ChunkMesh> = Vec::new();
+    while !work.is_empty() {
+        let level = work[0].0.level;
+        let delta = tree.delta_m[level as usize];
+        let bar = progress_bar(opts.progress, work.len() as u64, level, tree.depth());
+        let dir = tmp.join("tiles").join(level.to_string());
+        let results: Vec<Result<(ChunkMesh, Chunk, TileRecord), BuildError>> = work
+            .par_iter()
+            .map(|&(key, parent)| {
+                let parent = parent.map(|p| &parents[p]);
+                let t = Instant::now();
+                let spec = ChunkSpec { key, footprint: tree.footprint(key), delta_m: delta, parent };
+                let mesh = build_chunk(grid, &spec)?;
+                Timers::add(&timers.mesh, t);
+                let t = Instant::now();
+                let margin = tree.delta_m[(level as usize).saturating_sub(2)];
+                let chunk = assemble(grid, hf.spacing_m, &mesh, parent, margin);
+                Timers::add(&timers.skirt_morph, t);
+                let t = Instant::now();
+                let glb = encode_glb(&chunk, &ctx);
+                let path = tmp.join(tile_uri(key));
+                std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
+                    .and_then(|_| std::fs::write(&path, &glb))
+                    .map_err(|source| BuildError::Io { path: path.clone(), source })?;
+                bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
+                Timers::add(&timers.write, t);
+                bar.inc(1);
+                let (min, max) = bounds(&chunk);
+                Ok((mesh, chunk, TileRecord { key, min, max, delta_m: delta }))
+            })
+            .collect();
+        bar.finish_and_clear();
+        let _ = dir;
+        let mut lr = LevelReport { level, delta_m: delta, ..LevelReport::default() };
+        let mut next = Vec::new();
+        let mut meshes = Vec::with_capacity(results.len());
+        for r in results {
+            let (mesh, chunk, rec) = r?;
+            lr.chunks += 1;
+            lr.triangles += chunk.surface.triangle_count();
+            lr.skirt_triangles += chunk.skirt.triangle_count();
+            lr.vertices += chunk.surface.positions.len();
+            lr.max_error_m = lr.max_error_m.max(mesh.max_error_m);
+            records.push(rec);
+            let kids = if mesh.meets(cfg.max_error_m) { Vec::new() } else { tree.children(mesh.key) };
+            if kids.is_empty() {
+                lr.leaves += 1;
+            }
+            for c in kids {
+                if !has_voids || has_valid(grid, tree, c) {
+                    next.push((c, Some(meshes.len())));
+                }
+            }
+            meshes.push(mesh);
+        }
+        report.levels.push(lr);
+        parents = meshes;
+        work = next;
+    }
+    records.sort_by_key(|r| r.key);
+    report.bytes = *bytes.get_mut();
+    let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
+    report.thread_seconds =
+        ChunkStageTimes { mesh: s(&timers.mesh), skirt_morph: s(&timers.skirt_morph), write: s(&timers.write) };
+    Ok((report, records))
+}
+
+/// Surface (written triangles only) with normals and morph targets, then skirts.
+fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, parent: Option<&ChunkMesh>, margin_m: f64) -> Chunk {
+    let mut remap = vec![u32::MAX; mesh.vertices.len()];
+    let mut used = Vec::new();
+    let mut indices = Vec::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !mesh.kept[t] {
+            continue;
+        }
+        for &v in tri {
+            if remap[v as usize] == u32::MAX {
+                remap[v as usize] = used.len() as u32;
+                used.push(mesh.vertices[v as usize]);
+            }
+            indices.push(remap[v as usize]);
+        }
+    }
+    let parent_h = parent_heights(parent, &used);
+    let surface = Part {
+        positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
+        normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),
+        morph_dy: used.iter().zip(&parent_h).map(|(v, p)| p - v.h).collect(),
+        indices,
+    };
+    let grid_xz: Vec<(f64, f64)> = used.iter().map(|v| (v.x, v.z)).collect();
+    let skirt = build_skirt(grid, mesh.footprint, &surface, &grid_xz, &parent_h, margin_m);
+    Chunk {
+        key: mesh.key,
+        footprint: mesh.footprint,
+        delta_m: mesh.delta_m,
+        max_error_m: mesh.max_error_m,
+        surface,
+        skirt,
+    }
+}
+
+fn bounds(c: &Chunk) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in c.surface.positions.iter().chain(&c.skirt.positions) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+fn has_valid(grid: &Grid, tree: &ChunkTree, k: ChunkKey) -> bool {
+    let ((x0, x1), (z0, z1)) = tree.footprint(k);
+    (z0..=z1).any(|i| {
+        let row = &grid.heights[i as usize * grid.width..];
+        (x0..=x1).any(|j| !row[j as usize].is_nan())
+    })
+}
+
+fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
+    TilesetExtras {
+        generator: format!("terrachunk {}", env!("CARGO_PKG_VERSION")),
+        grid: GridSize { width: hf.width as u32, height: hf.height as u32 },
+        spacing_m: hf.spacing_m,
+        vertical_scale: opts.config.vertical_scale,
+        max_error_m: opts.config.max_error_m,
+        tau_max_px: opts.config.tau_max_px,
+        levels: tree.depth() + 1,
+        delta_m: tree.delta_m.clone(),
+        source: opts.inputs.iter().map(|p| p.display().to_string()).collect(),
+        georef: hf.georef.clone(),
+        morph: MorphConvention {
+            target: "parent".into(),
+            delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \
+                    skirt bottom vertices have delta 0"
+                .into(),
+            schedule: "blend weight toward the parent w = clamp(tau/rho - 1, 0, 1) keeps the screen error <= tau; \
+                       Ulrich's t = clamp(2 rho/tau - 1, 0, 1) (w = 1 - t) can reach 9/8 tau"
+                .into(),
+        },
+        skirt: "bottom = lowest valid sample, vertex or parent height between the neighbouring border vertices, \
+                minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
+            .into(),
+    }
+}
+
+fn progress_bar(enabled: bool, len: u64, level: u32, depth: u32) -> indicatif::ProgressBar {
+    if !enabled {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:40}] {pos}/{len} chunks {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(format!("level {level}/{depth}"));
+    bar
+}
+
+/// A sibling of `out` that a failed or killed run leaves instead of a partial tileset.
+fn temp_dir_for(out: &Path) -> PathBuf {
+    let name = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    parent.join(format!(".{name}.terrachunk-tmp-{}", std::process::id()))
+}
+
+/// Peak resident set size of this process, bytes (Linux only).
+pub fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}

@@ -1,0 +1,487 @@
+//! Verify: re-check a written tileset from its files alone (DESIGN.md's
+//! promises 1–3 and 5), independently of the code that built it.
+//!
+//! It reads `tileset.json` and every `.glb` back (the `gltf` crate for the
+//! accessors, `serde_json` for the f64 node translation), reloads the DEM the
+//! tileset names (or `--dem`), and measures:
+//! - error: every valid sample of a chunk's footprint lies within δ(L) of the
+//!   written surface (rasterised in f64 from the f32 positions), is covered by
+//!   a triangle, and chunks without children are within `max_error_m`;
+//! - borders: same-level neighbours have the same vertices on their shared
+//!   edge (within f32 rounding of the chunk-local positions);
+//! - morph: every vertex moved by its morph target lands on the parent's
+//!   surface, and every child triangle lies inside one parent triangle, so
+//!   the morphed chunk coincides with its parent everywhere; skirt bottoms do
+//!   not morph;
+//! - structure: 3D Tiles 1.1 fields, REPLACE, geometricError = δ(L) halving
+//!   with each level, boxes that contain their content, extras that match.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::dem::{self, LoadOptions};
+use crate::heightfield::Heightfield;
+use crate::mesh::MeshVertex;
+use crate::morph::{SurfaceLocator, barycentric};
+use crate::output::tileset::{TileExtras, TilesetExtras};
+use crate::quadtree::ChunkKey;
+
+/// Why verification could not run (as opposed to finding problems).
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    /// A file is missing, unreadable or not what it should be.
+    #[error("{path}: {what}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// The DEM could not be loaded.
+    #[error(transparent)]
+    Dem(#[from] dem::DemError),
+}
+
+/// One chunk as read back from its .glb.
+#[derive(Clone, Debug)]
+pub struct ChunkFile {
+    /// Level/x/y from the node extras.
+    pub key: ChunkKey,
+    /// δ(L) from the node extras.
+    pub delta_m: f64,
+    /// Footprint `[x0, x1, z0, z1]` in samples, from the node extras.
+    pub footprint: [u32; 4],
+    /// Node translation (f64 as written).
+    pub translation: [f64; 3],
+    /// Surface: world positions (translation + local), morph y deltas, triangles.
+    pub surface: Prim,
+    /// Skirt part, if any.
+    pub skirt: Option<Prim>,
+    /// Whether `mesh.weights == [0]` and `targetNames == ["parent"]`.
+    pub morph_contract: bool,
+}
+
+/// A primitive read back.
+#[derive(Clone, Debug, Default)]
+pub struct Prim {
+    /// World positions, metres.
+    pub positions: Vec<[f64; 3]>,
+    /// Morph target y deltas, metres (x and z deltas must be 0).
+    pub morph_dy: Vec<f64>,
+    /// Largest |x| or |z| morph delta found (must be 0).
+    pub morph_dxz: f64,
+    /// Triangles.
+    pub triangles: Vec<[u32; 3]>,
+    /// Largest |local coordinate|: sets the f32 tolerance.
+    pub local_extent: f64,
+}
+
+fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
+    VerifyError::File { path: path.into(), what: what.into() }
+}
+
+/// Reads one chunk file.
+pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
+    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
+    let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
+    let (doc, buffers, _) = gltf::import_slice(&bytes).map_err(|e| file_err(path, format!("bad glTF: {e}")))?;
+    let node = &json["nodes"][0];
+    let tc = &node["extras"]["terrachunk"];
+    let num = |v: &Value, what: &str| v.as_f64().ok_or_else(|| file_err(path, format!("node extras lack {what}")));
+    let key = ChunkKey {
+        level: num(&tc["level"], "level")? as u32,
+        x: num(&tc["x"], "x")? as u32,
+        y: num(&tc["y"], "y")? as u32,
+    };
+    let fp = &tc["footprint"];
+    let footprint = [num(&fp["x0"], "x0")?, num(&fp["x1"], "x1")?, num(&fp["z0"], "z0")?, num(&fp["z1"], "z1")?]
+        .map(|v| v as u32);
+    let t = &node["translation"];
+    let translation = [num(&t[0], "translation")?, num(&t[1], "translation")?, num(&t[2], "translation")?];
+    let mesh = doc.meshes().next().ok_or_else(|| file_err(path, "no mesh"))?;
+    let mjson = &json["meshes"][0];
+    let morph_contract = mjson["weights"] == serde_json::json!([0.0]) && mjson["extras"]["targetNames"] == serde_json::json!(["parent"]);
+    let mut surface = None;
+    let mut skirt = None;
+    for (pi, prim) in mesh.primitives().enumerate() {
+        let role = json["meshes"][0]["primitives"][pi]["extras"]["role"].as_str().unwrap_or("").to_string();
+        let reader = prim.reader(|b| Some(&buffers[b.index()]));
+        let local: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| file_err(path, "no POSITION"))?.collect();
+        let tris: Vec<u32> = reader.read_indices().ok_or_else(|| file_err(path, "no indices"))?.into_u32().collect();
+        let mut targets = reader.read_morph_targets();
+        let (dpos, _, _) = targets.next().ok_or_else(|| file_err(path, format!("{role}: no morph target")))?;
+        let deltas: Vec<[f32; 3]> = dpos.ok_or_else(|| file_err(path, "morph target has no POSITION"))?.collect();
+        if deltas.len() != local.len() || tris.len() % 3 != 0 || tris.iter().any(|&i| i as usize >= local.len()) {
+            return Err(file_err(path, format!("{role}: inconsistent accessor sizes")));
+        }
+        let p = Prim {
+            positions: local.iter().map(|l| [0, 1, 2].map(|a| translation[a] + f64::from(l[a]))).collect(),
+            morph_dy: deltas.iter().map(|d| f64::from(d[1])).collect(),
+            morph_dxz: deltas.iter().map(|d| d[0].abs().max(d[2].abs())).fold(0.0f32, f32::max).into(),
+            triangles: tris.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+            local_extent: local.iter().flatten().map(|v| f64::from(v.abs())).fold(0.0, f64::max),
+        };
+        match role.as_str() {
+            "surface" => surface = Some(p),
+            "skirt" => skirt = Some(p),
+            other => return Err(file_err(path, format!("primitive with unknown role {other:?}"))),
+        }
+    }
+    Ok(ChunkFile {
+        key,
+        delta_m: num(&tc["delta_m"], "delta_m")?,
+        footprint,
+        translation,
+        surface: surface.ok_or_else(|| file_err(path, "no surface primitive"))?,
+        skirt,
+        morph_contract,
+    })
+}
+
+/// Per-level measurements.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct LevelCheck {
+    /// Chunks checked.
+    pub chunks: usize,
+    /// δ(L).
+    pub delta_m: f64,
+    /// Largest measured error, metres.
+    pub max_error_m: f64,
+    /// Largest morph mismatch, metres.
+    pub max_morph_gap_m: f64,
+}
+
+/// What verify found.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct VerifyReport {
+    /// Per level.
+    pub levels: BTreeMap<u32, LevelCheck>,
+    /// Border pairs compared.
+    pub borders_checked: usize,
+    /// Problems, each naming the chunk.
+    pub failures: Vec<String>,
+}
+
+/// Checks the tileset at `dir`; `dem` overrides the source it names.
+pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyReport, VerifyError> {
+    let ts_path = dir.join("tileset.json");
+    let text = std::fs::read_to_string(&ts_path).map_err(|e| file_err(&ts_path, format!("cannot read: {e}")))?;
+    let ts: Value = serde_json::from_str(&text).map_err(|e| file_err(&ts_path, format!("bad JSON: {e}")))?;
+    let extras: TilesetExtras = serde_json::from_value(ts["extras"]["terrachunk"].clone())
+        .map_err(|e| file_err(&ts_path, format!("extras.terrachunk: {e}")))?;
+    let mut report = VerifyReport::default();
+    let fail = |r: &mut VerifyReport, s: String| r.failures.push(s);
+
+    // Structure.
+    if ts["asset"]["version"] != "1.1" {
+        fail(&mut report, "tileset.json: asset.version is not \"1.1\"".into());
+    }
+    let mut tiles: BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)> = BTreeMap::new();
+    check_tile(&ts["root"], None, &extras, &mut tiles, &mut report.failures, "REPLACE");
+
+    // Chunks, read in parallel.
+    let keys: Vec<ChunkKey> = tiles.keys().copied().collect();
+    let files: Vec<Result<ChunkFile, VerifyError>> = keys
+        .par_iter()
+        .map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y))))
+        .collect();
+    let mut chunks = BTreeMap::new();
+    for (k, f) in keys.iter().zip(files) {
+        match f {
+            Ok(c) => {
+                if c.key != *k {
+                    report.failures.push(format!("chunk {}: node extras say {:?}", name(*k), c.key));
+                }
+                chunks.insert(*k, c);
+            }
+            Err(e) => report.failures.push(format!("chunk {}: {e}", name(*k))),
+        }
+    }
+
+    let sources: Vec<PathBuf> = match dem_override {
+        Some(d) => d.to_vec(),
+        None => extras.source.iter().map(PathBuf::from).collect(),
+    };
+    let opts = LoadOptions { vertical_scale: Some(extras.vertical_scale), spacing_m: Some(extras.spacing_m) };
+    let hf = dem::load(&sources, &opts)?;
+    if [hf.width as u32, hf.height as u32] != [extras.grid.width, extras.grid.height] {
+        report.failures.push(format!(
+            "DEM is {}×{} but the tileset was built from {}×{}",
+            hf.width, hf.height, extras.grid.width, extras.grid.height
+        ));
+        return Ok(report);
+    }
+
+    // Per chunk: error, coverage, morph.
+    let results: Vec<(ChunkKey, f64, f64, Vec<String>)> = chunks
+        .par_iter()
+        .map(|(k, c)| {
+            let mut problems = Vec::new();
+            let has_children = !tiles[k].1.is_empty();
+            let err = check_error(&hf, c, extras.spacing_m, &mut problems);
+            if !has_children && err > extras.max_error_m {
+                problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
+            }
+            let parent = tiles.iter().find(|(_, (_, kids))| kids.contains(k)).map(|(pk, _)| *pk);
+            let gap = match parent.and_then(|p| chunks.get(&p)) {
+                Some(p) => check_morph(c, p, extras.spacing_m, &mut problems),
+                None => {
+                    let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+                    if m > 0.0 {
+                        problems.push(format!("top-level chunk has nonzero morph deltas (up to {m} m)"));
+                    }
+                    m
+                }
+            };
+            if !c.morph_contract {
+                problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
+            }
+            (*k, err, gap, problems)
+        })
+        .collect();
+    for (k, err, gap, problems) in results {
+        let l = report.levels.entry(k.level).or_default();
+        l.chunks += 1;
+        l.delta_m = chunks[&k].delta_m;
+        l.max_error_m = l.max_error_m.max(err);
+        l.max_morph_gap_m = l.max_morph_gap_m.max(gap);
+        for p in problems {
+            report.failures.push(format!("chunk {}: {p}", name(k)));
+        }
+    }
+
+    // Shared borders between same-level neighbours (east and south).
+    for (k, c) in &chunks {
+        for (dx, dy) in [(1, 0), (0, 1)] {
+            let nk = ChunkKey { level: k.level, x: k.x + dx, y: k.y + dy };
+            if let Some(n) = chunks.get(&nk) {
+                report.borders_checked += 1;
+                if let Some(p) = compare_border(c, n, dx == 1, extras.spacing_m) {
+                    report.failures.push(format!("chunks {} and {}: {p}", name(*k), name(nk)));
+                }
+            }
+        }
+    }
+    Ok(report)
+}
+
+/// `L/x/y`.
+pub fn name(k: ChunkKey) -> String {
+    format!("{}/{}/{}", k.level, k.x, k.y)
+}
+
+fn check_tile(
+    t: &Value,
+    parent: Option<(ChunkKey, f64)>,
+    extras: &TilesetExtras,
+    tiles: &mut BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)>,
+    failures: &mut Vec<String>,
+    inherited_refine: &str,
+) -> Option<ChunkKey> {
+    let refine = t["refine"].as_str().unwrap_or(inherited_refine);
+    if refine != "REPLACE" {
+        failures.push(format!("tile refine is {refine}, not REPLACE"));
+    }
+    let ge = t["geometricError"].as_f64();
+    let bx = t["boundingVolume"]["box"].as_array().filter(|b| b.len() == 12);
+    if ge.is_none() || bx.is_none() {
+        failures.push("a tile lacks geometricError or boundingVolume.box".into());
+    }
+    let mut me = None;
+    if t.get("content").is_some() {
+        match serde_json::from_value::<TileExtras>(t["extras"]["terrachunk"].clone()) {
+            Ok(te) => {
+                let k = ChunkKey { level: te.level, x: te.x, y: te.y };
+                let uri = format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y);
+                if t["content"]["uri"] != uri.as_str() {
+                    failures.push(format!("tile {}: content uri is {}", name(k), t["content"]["uri"]));
+                }
+                let want = extras.delta_m.get(k.level as usize).copied().unwrap_or(f64::NAN);
+                if ge != Some(te.delta_m) || te.delta_m != want {
+                    failures.push(format!("tile {}: geometricError {:?} / delta_m {} but level δ is {want}", name(k), ge, te.delta_m));
+                }
+                if let Some((pk, pd)) = parent {
+                    if k.level != pk.level + 1 || (te.delta_m * 2.0 - pd).abs() > 1e-9 * pd {
+                        failures.push(format!("tile {}: δ {} does not halve its parent {}'s δ {pd}", name(k), te.delta_m, name(pk)));
+                    }
+                    if let Some(e) = tiles.get_mut(&pk) {
+                        e.1.push(k);
+                    }
+                }
+                tiles.insert(k, (t.clone(), Vec::new()));
+                me = Some((k, te.delta_m));
+            }
+            Err(e) => failures.push(format!("tile without valid extras.terrachunk: {e}")),
+        }
+    }
+    if let Some(children) = t["children"].as_array() {
+        for c in children {
+            check_tile(c, me.or(parent.filter(|_| me.is_some())), extras, tiles, failures, refine);
+        }
+    }
+    me.map(|m| m.0)
+}
+
+/// Largest |surface − sample| over the footprint; records uncovered samples
+/// and vertices outside the footprint.
+fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mut Vec<String>) -> f64 {
+    let [x0, x1, z0, z1] = c.footprint;
+    if x1 as usize >= hf.width || z1 as usize >= hf.height || x0 >= x1 || z0 >= z1 {
+        problems.push(format!("footprint {:?} is outside the {}×{} grid", c.footprint, hf.width, hf.height));
+        return f64::INFINITY;
+    }
+    let verts: Vec<MeshVertex> =
+        c.surface.positions.iter().map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1] }).collect();
+    let tol = 1e-4 * ((x1 - x0) + (z1 - z0)) as f64;
+    if verts.iter().any(|v| v.x < f64::from(x0) - tol || v.x > f64::from(x1) + tol || v.z < f64::from(z0) - tol || v.z > f64::from(z1) + tol) {
+        problems.push("a surface vertex lies outside the footprint".into());
+    }
+    // Each sample's error is taken from the triangle that fits it best: on a
+    // shared edge all agree, and a zero-width sliver's neighbour must not
+    // count a vertex it merely touches (within f32 rounding) against it.
+    let w = (x1 - x0 + 1) as usize;
+    let mut best = vec![f64::INFINITY; w * (z1 - z0 + 1) as usize];
+    for t in &c.surface.triangles {
+        let [a, b, d] = t.map(|i| verts[i as usize]);
+        let zlo = a.z.min(b.z).min(d.z);
+        let zhi = a.z.max(b.z).max(d.z);
+        let xlo = a.x.min(b.x).min(d.x);
+        let xhi = a.x.max(b.x).max(d.x);
+        for i in ((zlo - 1e-4).ceil().max(f64::from(z0)) as u32)..=((zhi + 1e-4).floor().min(f64::from(z1)) as u32) {
+            for j in ((xlo - 1e-4).ceil().max(f64::from(x0)) as u32)..=((xhi + 1e-4).floor().min(f64::from(x1)) as u32) {
+                let (outside, h) = barycentric(&a, &b, &d, f64::from(j), f64::from(i));
+                if outside > 1e-5 {
+                    continue;
+                }
+                let s = hf.get(i as usize, j as usize);
+                if s.is_nan() {
+                    continue;
+                }
+                let e = &mut best[(i - z0) as usize * w + (j - x0) as usize];
+                *e = e.min((h - f64::from(s)).abs());
+            }
+        }
+    }
+    let covered: Vec<bool> = best.iter().map(|e| e.is_finite()).collect();
+    let max_err = best.iter().copied().filter(|e| e.is_finite()).fold(0.0, f64::max);
+    let mut uncovered = 0;
+    for i in z0..=z1 {
+        for j in x0..=x1 {
+            if !hf.get(i as usize, j as usize).is_nan() && !covered[(i - z0) as usize * w + (j - x0) as usize] {
+                uncovered += 1;
+            }
+        }
+    }
+    if uncovered > 0 {
+        problems.push(format!("{uncovered} valid samples are not covered by any triangle"));
+    }
+    if max_err > c.delta_m {
+        problems.push(format!("error {max_err:.4} m exceeds δ {} m", c.delta_m));
+    }
+    max_err
+}
+
+/// Morph targets on the parent surface; child triangles inside parent ones.
+fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut Vec<String>) -> f64 {
+    let to_grid = |q: &[f64; 3]| MeshVertex { x: q[0] / spacing[0], z: q[2] / spacing[1], h: q[1] };
+    let pv: Vec<MeshVertex> = p.surface.positions.iter().map(to_grid).collect();
+    let loc = SurfaceLocator::from_parts(&pv, &p.surface.triangles);
+    // f32 rounding of both chunks' local coordinates and of the delta; on a
+    // slope, horizontal rounding moves heights by the slope times as much.
+    let slope = p.surface.triangles.iter().map(|t| plane_slope(t.map(|i| pv[i as usize]), spacing)).fold(0.0, f64::max);
+    let tol = 1e-5 + 8.0 * f64::from(f32::EPSILON) * (c.surface.local_extent + p.surface.local_extent) * (1.0 + slope);
+    let mut gap: f64 = 0.0;
+    let mut missing = 0;
+    let cv: Vec<MeshVertex> = c.surface.positions.iter().map(to_grid).collect();
+    for (v, dy) in cv.iter().zip(&c.surface.morph_dy) {
+        match loc.locate(v.x, v.z) {
+            Some((t, h)) => {
+                if (v.h + dy - h).abs() > 1.0 && std::env::var_os("TC_DEBUG").is_some() {
+                    let pt = p.surface.triangles[t as usize].map(|i| pv[i as usize]);
+                    eprintln!("GAP {} v {:?} dy {dy} parent h {h} tri {:?}", name(c.key), v, pt);
+                }
+                gap = gap.max((v.h + dy - h).abs())
+            }
+            None => missing += 1,
+        }
+    }
+    if missing > 0 {
+        problems.push(format!("{missing} vertices lie outside the parent {}'s surface", name(p.key)));
+    }
+    let mut straddling = 0;
+    for t in &c.surface.triangles {
+        let [a, b, d] = t.map(|i| cv[i as usize]);
+        let (cx, cz) = ((a.x + b.x + d.x) / 3.0, (a.z + b.z + d.z) / 3.0);
+        if let Some((pt, _)) = loc.locate(cx, cz) {
+            let [pa, pb, pd] = p.surface.triangles[pt as usize].map(|i| pv[i as usize]);
+            if [a, b, d].iter().any(|v| barycentric(&pa, &pb, &pd, v.x, v.z).0 > 1e-4) {
+                straddling += 1;
+            }
+        }
+    }
+    if straddling > 0 {
+        problems.push(format!("{straddling} triangles straddle an edge of the parent {}", name(p.key)));
+    }
+    if let Some(s) = &c.skirt {
+        let sv: Vec<MeshVertex> = s.positions.iter().map(to_grid).collect();
+        for (v, dy) in sv.iter().zip(&s.morph_dy) {
+            if *dy != 0.0
+                && let Some((_, h)) = loc.locate(v.x, v.z)
+            {
+                gap = gap.max((v.h + dy - h).abs());
+            }
+        }
+    }
+    if gap > tol {
+        problems.push(format!("morph target misses the parent {} surface by {gap:.6} m", name(p.key)));
+    }
+    if c.surface.morph_dxz != 0.0 {
+        problems.push("morph target has nonzero x/z deltas".into());
+    }
+    gap
+}
+
+/// Steepest gradient (m per m) of a triangle given in grid coordinates.
+fn plane_slope(t: [MeshVertex; 3], spacing: [f64; 2]) -> f64 {
+    let [a, b, c] = t.map(|v| [v.x * spacing[0], v.z * spacing[1], v.h]);
+    let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+    if det.abs() < 1e-3 * spacing[0] * spacing[1] {
+        return 0.0; // a sliver: no vertex is located in it (see SurfaceLocator)
+    }
+    let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
+    let gz = ((b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2])) / det;
+    gx.hypot(gz)
+}
+
+/// Compares the vertices on the shared edge of `a` and its east (`east`) or
+/// south neighbour `b`. Only the stretches both chunks draw are compared.
+fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -> Option<String> {
+    let (line, axis, along) = if east { (a.footprint[1], 0, 2) } else { (a.footprint[3], 2, 0) };
+    let c = f64::from(line) * spacing[if east { 0 } else { 1 }];
+    let tol = 1e-4 + 4.0 * f64::from(f32::EPSILON) * (a.surface.local_extent + b.surface.local_extent);
+    let on = |f: &ChunkFile| {
+        let mut v: Vec<[f64; 3]> = f.surface.positions.iter().filter(|p| (p[axis] - c).abs() <= tol).copied().collect();
+        v.sort_by(|p, q| p[along].total_cmp(&q[along]));
+        v
+    };
+    let (va, vb) = (on(a), on(b));
+    let span = |v: &[[f64; 3]]| (v.first().map_or(f64::INFINITY, |p| p[along]), v.last().map_or(f64::NEG_INFINITY, |p| p[along]));
+    let (sa, sb) = (span(&va), span(&vb));
+    let (lo, hi) = (sa.0.max(sb.0) - tol, sa.1.min(sb.1) + tol);
+    let clip = |v: Vec<[f64; 3]>| v.into_iter().filter(|p| p[along] >= lo && p[along] <= hi).collect::<Vec<_>>();
+    let (va, vb) = (clip(va), clip(vb));
+    if va.len() != vb.len() {
+        return Some(format!("{} vs {} vertices on the shared edge", va.len(), vb.len()));
+    }
+    for (p, q) in va.iter().zip(&vb) {
+        if (0..3).any(|k| (p[k] - q[k]).abs() > tol) {
+            return Some(format!("border vertex {p:?} vs {q:?}"));
+        }
+    }
+    None
+}
