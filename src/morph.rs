@@ -71,12 +71,13 @@ impl<'m> SurfaceLocator<'m> {
             }
         }
         let best = best.map(|b| (b.0, b.2, b.3));
-        best.filter(|b| b.0 < 1e-6).map(|b| (b.1, b.2))
+        best.filter(|b| b.0 < 1e-3).map(|b| (b.1, b.2))
     }
 }
 
-/// How far outside triangle (a, b, c) the point is (0 inside, in barycentric
-/// units) and the linear interpolation of the heights there.
+/// How far outside triangle (a, b, c) the point is, in grid units (0 when
+/// inside or on it), and the linear interpolation of the heights there
+/// (extrapolated when outside).
 pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f64) -> (f64, f64) {
     let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
     if det.abs() < 1e-300 {
@@ -85,7 +86,17 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
     let l1 = ((x - a.x) * (c.z - a.z) - (c.x - a.x) * (z - a.z)) / det;
     let l2 = ((b.x - a.x) * (z - a.z) - (x - a.x) * (b.z - a.z)) / det;
     let l0 = 1.0 - l1 - l2;
-    ((-l0).max(-l1).max(-l2).max(0.0), l0 * a.h + l1 * b.h + l2 * c.h)
+    let h = l0 * a.h + l1 * b.h + l2 * c.h;
+    if l0 >= 0.0 && l1 >= 0.0 && l2 >= 0.0 {
+        return (0.0, h);
+    }
+    let seg = |p: &MeshVertex, q: &MeshVertex| {
+        let (dx, dz) = (q.x - p.x, q.z - p.z);
+        let len2 = dx * dx + dz * dz;
+        let t = if len2 > 0.0 { (((x - p.x) * dx + (z - p.z) * dz) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        (x - p.x - t * dx).hypot(z - p.z - t * dz)
+    };
+    (seg(a, b).min(seg(b, c)).min(seg(c, a)), h)
 }
 
 /// Height of `parent`'s surface under each of `points` (grid x, z), or the

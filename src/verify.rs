@@ -355,8 +355,8 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         for i in ((zlo - 1e-4).ceil().max(f64::from(z0)) as u32)..=((zhi + 1e-4).floor().min(f64::from(z1)) as u32) {
             for j in ((xlo - 1e-4).ceil().max(f64::from(x0)) as u32)..=((xhi + 1e-4).floor().min(f64::from(x1)) as u32) {
                 let (outside, h) = barycentric(&a, &b, &d, f64::from(j), f64::from(i));
-                if outside > 1e-5 {
-                    continue;
+                if outside > 1e-4 {
+                    continue; // more than f32 rounding away (grid units)
                 }
                 let s = hf.get(i as usize, j as usize);
                 if s.is_nan() {
@@ -373,6 +373,13 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
     for i in z0..=z1 {
         for j in x0..=x1 {
             if !hf.get(i as usize, j as usize).is_nan() && !covered[(i - z0) as usize * w + (j - x0) as usize] {
+                if std::env::var_os("TC_DEBUG").is_some() {
+                    let near: Vec<_> = c.surface.triangles.iter().map(|t| {
+                        let [a, b, d] = t.map(|k| verts[k as usize]);
+                        (barycentric(&a, &b, &d, f64::from(j), f64::from(i)).0, [a, b, d].map(|v| (v.x, v.z)))
+                    }).filter(|x| x.0 < 0.1).collect();
+                    eprintln!("UNCOVERED {} ({j}, {i}) near {near:?}", name(c.key));
+                }
                 uncovered += 1;
             }
         }
@@ -476,7 +483,16 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
     let clip = |v: Vec<[f64; 3]>| v.into_iter().filter(|p| p[along] >= lo && p[along] <= hi).collect::<Vec<_>>();
     let (va, vb) = (clip(va), clip(vb));
     if va.len() != vb.len() {
-        return Some(format!("{} vs {} vertices on the shared edge", va.len(), vb.len()));
+        let only = |x: &[[f64; 3]], y: &[[f64; 3]]| {
+            x.iter().filter(|p| !y.iter().any(|q| (0..3).all(|k| (p[k] - q[k]).abs() <= tol))).map(|p| format!("{p:?}")).collect::<Vec<_>>().join(", ")
+        };
+        return Some(format!(
+            "{} vs {} vertices on the shared edge (only in the first: {}; only in the second: {})",
+            va.len(),
+            vb.len(),
+            only(&va, &vb),
+            only(&vb, &va)
+        ));
     }
     for (p, q) in va.iter().zip(&vb) {
         if (0..3).any(|k| (p[k] - q[k]).abs() > tol) {

@@ -511,8 +511,8 @@ fn face_key(cdt: &Cdt, face: FixedFaceHandle<spade::handles::InnerTag>) -> [u32;
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
 /// triangle `tri` (clipped to `clip`); returns whether any valid sample was
-/// seen, or `None` for a zero-area triangle (which is not scanned).
-fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl FnMut(u32, u32, f64)) -> Option<bool> {
+/// what it covers, or `None` for a zero-area triangle (which is not scanned).
+fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl FnMut(u32, u32, f64)) -> Option<Coverage> {
     let [a, b, c] = tri.map(|v| (v.p.x, v.p.y, v.h));
     let det = (b.0 - a.0) * (c.1 - a.1) - (c.0 - a.0) * (b.1 - a.1);
     if det.abs() < 1e-12 {
@@ -527,6 +527,7 @@ fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl 
     let first = (zmin - EPS).ceil() as i64;
     let last = (zmax + EPS).floor() as i64;
     let mut any = false;
+    let mut seen = false;
     let edges = [(a, b), (b, c), (c, a)];
     for i in first..=last {
         let z = i as f64;
@@ -555,6 +556,7 @@ fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl 
         let row = &grid.heights[i as usize * grid.width..];
         let base = a.2 + gz * (z - a.1) - gx * a.0;
         for j in j0..=j1 {
+            seen = true;
             let h = row[j as usize];
             if h.is_nan() {
                 continue;
@@ -564,7 +566,31 @@ fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl 
             visit(i as u32, j as u32, err);
         }
     }
-    Some(any)
+    Some(match (seen, any) {
+        (_, true) => Coverage::Valid,
+        (true, false) => Coverage::NodataOnly,
+        (false, _) => Coverage::NoSample,
+    })
+}
+
+/// What samples a triangle covers.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Coverage {
+    /// At least one valid sample.
+    Valid,
+    /// Samples, all nodata.
+    NodataOnly,
+    /// No sample at all (a small triangle between samples).
+    NoSample,
+}
+
+/// Whether any corner of the grid cell under the triangle's centroid holds data.
+fn cell_has_data(grid: &Grid, tri: &[V; 3]) -> bool {
+    let cx = (tri[0].p.x + tri[1].p.x + tri[2].p.x) / 3.0;
+    let cz = (tri[0].p.y + tri[1].p.y + tri[2].p.y) / 3.0;
+    let j = (cx.floor().max(0.0) as usize).min(grid.width - 2);
+    let i = (cz.floor().max(0.0) as usize).min(grid.height - 2);
+    [(i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)].iter().any(|&(i, j)| !grid.sample(i, j).is_nan())
 }
 
 fn finish(grid: &Grid, spec: &ChunkSpec, cdt: &Cdt, lines: &Lines, relief_m: f64) -> ChunkMesh {
@@ -586,8 +612,13 @@ fn finish(grid: &Grid, spec: &ChunkSpec, cdt: &Cdt, lines: &Lines, relief_m: f64
         // grid space that is clockwise, so store them reversed.
         let [a, b, c] = f.vertices().map(|v| v.fix().index() as u32);
         triangles.push([a, c, b]);
-        // A zero-area sliver covers nothing but closes the surface: keep it.
-        kept.push(any.unwrap_or(true));
+        // A zero-area sliver, or a small triangle with no sample inside,
+        // covers nothing by itself: keep it unless its cell is all nodata.
+        kept.push(match any {
+            Some(Coverage::Valid) => true,
+            Some(Coverage::NodataOnly) => false,
+            _ => cell_has_data(grid, &tri),
+        });
     }
     ChunkMesh {
         key: spec.key,
