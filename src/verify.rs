@@ -465,39 +465,49 @@ fn plane_slope(t: [MeshVertex; 3], spacing: [f64; 2]) -> f64 {
     gx.hypot(gz)
 }
 
-/// Compares the vertices on the shared edge of `a` and its east (`east`) or
-/// south neighbour `b`. Only the stretches both chunks draw are compared.
+/// Compares the shared edge of `a` and its east (`east`) or south
+/// neighbour `b`: wherever one chunk has a vertex strictly inside an edge the
+/// other chunk draws along the line, that is a T-junction (a crack), and
+/// vertices at the same place must have the same height. Stretches over
+/// nodata that only one side draws are not compared.
 fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -> Option<String> {
     let (line, axis, along) = if east { (a.footprint[1], 0, 2) } else { (a.footprint[3], 2, 0) };
     let c = f64::from(line) * spacing[if east { 0 } else { 1 }];
     let tol = 1e-4 + 4.0 * f64::from(f32::EPSILON) * (a.surface.local_extent + b.surface.local_extent);
-    let on = |f: &ChunkFile| {
-        let mut v: Vec<[f64; 3]> = f.surface.positions.iter().filter(|p| (p[axis] - c).abs() <= tol).copied().collect();
-        v.sort_by(|p, q| p[along].total_cmp(&q[along]));
-        v
-    };
-    let (va, vb) = (on(a), on(b));
-    let span = |v: &[[f64; 3]]| (v.first().map_or(f64::INFINITY, |p| p[along]), v.last().map_or(f64::NEG_INFINITY, |p| p[along]));
-    let (sa, sb) = (span(&va), span(&vb));
-    let (lo, hi) = (sa.0.max(sb.0) - tol, sa.1.min(sb.1) + tol);
-    let clip = |v: Vec<[f64; 3]>| v.into_iter().filter(|p| p[along] >= lo && p[along] <= hi).collect::<Vec<_>>();
-    let (va, vb) = (clip(va), clip(vb));
-    if va.len() != vb.len() {
-        let only = |x: &[[f64; 3]], y: &[[f64; 3]]| {
-            x.iter().filter(|p| !y.iter().any(|q| (0..3).all(|k| (p[k] - q[k]).abs() <= tol))).map(|p| format!("{p:?}")).collect::<Vec<_>>().join(", ")
-        };
-        return Some(format!(
-            "{} vs {} vertices on the shared edge (only in the first: {}; only in the second: {})",
-            va.len(),
-            vb.len(),
-            only(&va, &vb),
-            only(&vb, &va)
-        ));
-    }
-    for (p, q) in va.iter().zip(&vb) {
-        if (0..3).any(|k| (p[k] - q[k]).abs() > tol) {
-            return Some(format!("border vertex {p:?} vs {q:?}"));
+    // Vertices on the line, and the edges along it (as index pairs).
+    let on_line = |f: &ChunkFile| {
+        let on: Vec<bool> = f.surface.positions.iter().map(|p| (p[axis] - c).abs() <= tol).collect();
+        let mut edges = Vec::new();
+        for t in &f.surface.triangles {
+            for e in 0..3 {
+                let (u, v) = (t[e] as usize, t[(e + 1) % 3] as usize);
+                if on[u] && on[v] {
+                    let (pu, pv) = (f.surface.positions[u], f.surface.positions[v]);
+                    edges.push(if pu[along] <= pv[along] { (pu, pv) } else { (pv, pu) });
+                }
+            }
         }
-    }
-    None
+        let verts: Vec<[f64; 3]> =
+            f.surface.positions.iter().zip(&on).filter(|(_, o)| **o).map(|(p, _)| *p).collect();
+        (verts, edges)
+    };
+    let (va, ea) = on_line(a);
+    let (vb, eb) = on_line(b);
+    let check = |verts: &[[f64; 3]], edges: &[([f64; 3], [f64; 3])], other: &str| -> Option<String> {
+        for p in verts {
+            for (u, v) in edges {
+                let t = p[along];
+                if t > u[along] + tol && t < v[along] - tol {
+                    return Some(format!("vertex {p:?} lies inside the {other} chunk's border edge {u:?}–{v:?}"));
+                }
+                for q in [u, v] {
+                    if (q[along] - t).abs() <= tol && (q[1] - p[1]).abs() > tol * 10.0 + 1e-3 {
+                        return Some(format!("border vertex {p:?} vs {q:?}: heights differ"));
+                    }
+                }
+            }
+        }
+        None
+    };
+    check(&va, &eb, "second").or_else(|| check(&vb, &ea, "first"))
 }
