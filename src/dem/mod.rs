@@ -3,19 +3,47 @@
 //! Each format lives in its own file and returns a `Heightfield` with NaN for
 //! nodata, spacing in metres (geographic grids go through
 //! [`Heightfield::apply_local_tangent`]) and the georeference it found.
-//! Errors name the file and what is wrong with it; nothing here panics on
-//! user input.
+//! This module picks the reader (by magic bytes first, then by extension),
+//! applies the user's overrides, and checks what every later stage relies on:
+//! at least 2 × 2 samples, a finite positive spacing, no infinite height and
+//! at least one sample with data. Errors name the file and what is wrong with
+//! it; nothing here panics on user input.
+//!
+//! Formats read:
+//!
+//! | format | extension | samples | georeference |
+//! |---|---|---|---|
+//! | GeoTIFF | `.tif`, `.tiff` | one band of int 8/16/32/64, uint 8/16/32/64, float 16/32/64; strips or tiles; uncompressed, LZW, DEFLATE, PackBits, with or without predictor | GeoKeys, `GDAL_NODATA` |
+//! | PNG | `.png` | 8- or 16-bit grayscale (value = metres), 8-bit RGB(A) Mapbox Terrain-RGB | none |
+//! | SRTM | `.hgt` | big-endian int16, square; several tiles (or a folder) form a mosaic | from the file name |
+//! | ESRI ASCII grid | `.asc` | text | header (CRS unknown: read as projected metres unless a `.prj` beside it is geographic) |
+//! | VTP BT 1.1–1.3 | `.bt` | int16, int32, float32 | header |
+//! | OpenEXR | `.exr` | one float16/float32 channel | none |
+//!
+//! A file without a georeference gets a spacing of 1 m on both axes unless
+//! [`LoadOptions::spacing_m`] says otherwise.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use crate::heightfield::Heightfield;
+
+mod asc;
+mod bt;
+mod exr;
+mod geotiff;
+mod hgt;
+mod png;
 
 /// Options that override what a file says.
 #[derive(Clone, Debug, Default)]
 pub struct LoadOptions {
     /// Multiply every height by this (e.g. 0.3048 for feet). Default 1.
+    /// Must be finite and non-zero.
     pub vertical_scale: Option<f64>,
-    /// Force the ground spacing in metres, `[s_x, s_z]`.
+    /// Force the ground spacing in metres, `[s_x, s_z]`; both finite and > 0.
+    /// Files without a georeference (PNG, EXR, a GeoTIFF without GeoKeys)
+    /// otherwise get 1 m.
     pub spacing_m: Option<[f64; 2]>,
 }
 
@@ -56,20 +84,264 @@ pub enum DemError {
     },
 }
 
-/// Load one DEM, or several `.hgt` tiles (or a folder of them) as a mosaic.
-pub fn load(paths: &[PathBuf], opts: &LoadOptions) -> Result<Heightfield, DemError> {
-    todo_loader(paths, opts)
+impl DemError {
+    /// The file the error is about.
+    pub fn path(&self) -> &Path {
+        match self {
+            DemError::Io { path, .. }
+            | DemError::Unsupported { path, .. }
+            | DemError::Corrupt { path, .. }
+            | DemError::Invalid { path, .. } => path,
+        }
+    }
 }
 
-#[allow(dead_code)]
-fn todo_loader(paths: &[PathBuf], _opts: &LoadOptions) -> Result<Heightfield, DemError> {
-    Err(DemError::Unsupported {
-        path: paths.first().cloned().unwrap_or_default(),
-        what: "loaders not written yet".into(),
+/// The most samples one grid may hold (2^31, 8 GiB of `f32`): anything larger
+/// is a corrupt header or a file this tool cannot hold in memory anyway.
+pub(crate) const MAX_SAMPLES: usize = 1 << 31;
+
+pub(crate) fn io_error(path: &Path, source: std::io::Error) -> DemError {
+    DemError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+pub(crate) fn unsupported(path: &Path, what: impl Into<String>) -> DemError {
+    DemError::Unsupported {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+pub(crate) fn corrupt(path: &Path, what: impl Into<String>) -> DemError {
+    DemError::Corrupt {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+pub(crate) fn invalid(path: &Path, what: impl Into<String>) -> DemError {
+    DemError::Invalid {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+/// `width × height`, refused when it overflows or exceeds [`MAX_SAMPLES`].
+pub(crate) fn sample_count(path: &Path, width: usize, height: usize) -> Result<usize, DemError> {
+    match width.checked_mul(height) {
+        Some(n) if n <= MAX_SAMPLES => Ok(n),
+        _ => Err(unsupported(
+            path,
+            format!(
+                "grid of {width} × {height} samples is larger than the {MAX_SAMPLES} samples \
+                 terrachunk can hold"
+            ),
+        )),
+    }
+}
+
+/// The file name alone, for `Heightfield::source`.
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string())
+}
+
+/// Load one DEM, or several `.hgt` tiles (or a folder of them) as a mosaic.
+///
+/// The result has at least 2 × 2 samples, a finite spacing > 0, no infinite
+/// height and at least one sample that is not nodata (NaN); heights are
+/// multiplied by `opts.vertical_scale` and the spacing replaced by
+/// `opts.spacing_m` when given.
+pub fn load(paths: &[PathBuf], opts: &LoadOptions) -> Result<Heightfield, DemError> {
+    let Some(first) = paths.first() else {
+        return Err(invalid(Path::new(""), "no input file given"));
+    };
+    check_options(first, opts)?;
+    let (hf, name_for_errors) = if paths.len() > 1 {
+        let hf = hgt::load_mosaic(paths)?;
+        let name = PathBuf::from(&hf.source);
+        (hf, name)
+    } else if first.is_dir() {
+        (hgt::load_folder(first)?, first.clone())
+    } else {
+        (load_one(first, opts)?, first.clone())
+    };
+    finish(&name_for_errors, hf, opts)
+}
+
+/// Reject overrides no grid could use, before reading anything.
+fn check_options(path: &Path, opts: &LoadOptions) -> Result<(), DemError> {
+    if let Some(s) = opts.vertical_scale
+        && !(s.is_finite() && s != 0.0)
+    {
+        return Err(invalid(
+            path,
+            format!("vertical scale override {s} must be finite and non-zero"),
+        ));
+    }
+    if let Some([sx, sz]) = opts.spacing_m
+        && !(sx.is_finite() && sz.is_finite() && sx > 0.0 && sz > 0.0)
+    {
+        return Err(invalid(
+            path,
+            format!("spacing override {sx} × {sz} m: both must be finite and greater than 0"),
+        ));
+    }
+    Ok(())
+}
+
+/// The formats terrachunk reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Format {
+    Tiff,
+    Png,
+    Hgt,
+    Asc,
+    Bt,
+    Exr,
+}
+
+/// Recognise a format from the first bytes of the file.
+fn sniff(head: &[u8]) -> Option<Format> {
+    if head.starts_with(b"II*\0")
+        || head.starts_with(b"MM\0*")
+        || head.starts_with(b"II+\0")
+        || head.starts_with(b"MM\0+")
+    {
+        return Some(Format::Tiff);
+    }
+    if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return Some(Format::Png);
+    }
+    if head.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        return Some(Format::Exr);
+    }
+    if head.starts_with(b"binterr") {
+        return Some(Format::Bt);
+    }
+    let text = head.trim_ascii_start();
+    if text.len() >= 5 && text[..5].eq_ignore_ascii_case(b"ncols")
+        || text.len() >= 5 && text[..5].eq_ignore_ascii_case(b"nrows")
+    {
+        return Some(Format::Asc);
+    }
+    None
+}
+
+fn by_extension(path: &Path) -> Option<Format> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    Some(match ext.as_str() {
+        "tif" | "tiff" | "gtif" | "gtiff" => Format::Tiff,
+        "png" => Format::Png,
+        "hgt" => Format::Hgt,
+        "asc" => Format::Asc,
+        "bt" => Format::Bt,
+        "exr" => Format::Exr,
+        _ => return None,
     })
 }
 
-#[allow(dead_code)]
-fn display(path: &Path) -> String {
-    path.display().to_string()
+/// Read one file, choosing the reader by its magic bytes (so a misnamed file
+/// still loads) and by its extension for formats without one (`.hgt`).
+fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
+    let mut head = Vec::with_capacity(64);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(64).read_to_end(&mut head))
+        .map_err(|e| io_error(path, e))?;
+    let format = match sniff(&head).or_else(|| by_extension(path)) {
+        Some(f) => f,
+        None => {
+            let shown: String = head
+                .iter()
+                .take(8)
+                .map(|b| format!("{b:02x}"))
+                .collect::<Vec<_>>()
+                .join(" ");
+            let ext = path
+                .extension()
+                .map(|e| format!(".{}", e.to_string_lossy()))
+                .unwrap_or_else(|| "no extension".into());
+            return Err(unsupported(
+                path,
+                format!(
+                    "not a recognised DEM ({ext}, first bytes {shown}); terrachunk reads \
+                     GeoTIFF, PNG, SRTM .hgt, ESRI .asc, VTP .bt and OpenEXR"
+                ),
+            ));
+        }
+    };
+    match format {
+        Format::Tiff => geotiff::load(path),
+        Format::Png => png::load(path),
+        Format::Hgt => hgt::load_single(path, opts.spacing_m.is_some()),
+        Format::Asc => asc::load(path),
+        Format::Bt => bt::load(path),
+        Format::Exr => self::exr::load(path),
+    }
+}
+
+/// Apply the overrides, then check what every later stage relies on.
+fn finish(path: &Path, mut hf: Heightfield, opts: &LoadOptions) -> Result<Heightfield, DemError> {
+    if let Some(scale) = opts.vertical_scale
+        && scale != 1.0
+    {
+        for h in &mut hf.heights {
+            *h = (f64::from(*h) * scale) as f32;
+        }
+    }
+    if let Some(spacing) = opts.spacing_m {
+        hf.spacing_m = spacing;
+    }
+    validate(path, &hf)?;
+    Ok(hf)
+}
+
+fn validate(path: &Path, hf: &Heightfield) -> Result<(), DemError> {
+    if hf.width < 2 || hf.height < 2 {
+        return Err(invalid(
+            path,
+            format!(
+                "grid is {} × {} samples; need at least 2 × 2",
+                hf.width, hf.height
+            ),
+        ));
+    }
+    if hf.width.checked_mul(hf.height) != Some(hf.heights.len()) {
+        return Err(corrupt(
+            path,
+            format!(
+                "{} heights decoded for a {} × {} grid",
+                hf.heights.len(),
+                hf.width,
+                hf.height
+            ),
+        ));
+    }
+    let [sx, sz] = hf.spacing_m;
+    if !(sx.is_finite() && sz.is_finite() && sx > 0.0 && sz > 0.0) {
+        return Err(invalid(
+            path,
+            format!(
+                "sample spacing {sx} × {sz} m: both must be finite and greater than 0 \
+                 (override it with a spacing option)"
+            ),
+        ));
+    }
+    let infinite = hf.heights.iter().filter(|h| h.is_infinite()).count();
+    if infinite > 0 {
+        return Err(invalid(
+            path,
+            format!("{infinite} samples are infinite; heights must be finite (NaN = nodata)"),
+        ));
+    }
+    if hf.heights.iter().all(|h| h.is_nan()) {
+        return Err(invalid(
+            path,
+            format!("all {} samples are nodata", hf.heights.len()),
+        ));
+    }
+    Ok(())
 }

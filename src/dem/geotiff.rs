@@ -1,0 +1,555 @@
+//! GeoTIFF: one band of integer or float samples, in strips or tiles,
+//! uncompressed or compressed (LZW, DEFLATE, PackBits, with or without the
+//! horizontal predictor), decoded by the `tiff` crate chunk by chunk straight
+//! into the final `f32` grid, so a 40 M-sample DEM needs no second full copy.
+//!
+//! Georeference comes from the GeoTIFF tags (OGC GeoTIFF 1.1):
+//! ModelPixelScale (33550) and ModelTiepoint (33922), or a ModelTransformation
+//! (34264) in their place, and the GeoKeyDirectory (34735) for the model type
+//! (1024), raster type (1025: PixelIsArea puts the tie point on a pixel's
+//! corner, PixelIsPoint on its centre), the EPSG codes (2048, 3072) and the
+//! projected linear unit (3076). Nodata is GDAL's ASCII tag GDAL_NODATA
+//! (42113). A TIFF without GeoKeys is a plain grid with 1 m spacing.
+//!
+//! Web Mercator (EPSG:3857 and its aliases) is not a metric grid on the
+//! ground: its "metres" are stretched by 1/cos(latitude). Its spacing is
+//! therefore scaled by cos(latitude) at the grid centre, so heights and
+//! horizontal distances are both true metres.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+use tiff::TiffError;
+use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
+use tiff::tags::Tag;
+
+use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
+use crate::heightfield::{Crs, Georef, Heightfield};
+
+/// GeoKey ids (GeoTIFF 1.1, section 7).
+const GT_MODEL_TYPE: u16 = 1024;
+const GT_RASTER_TYPE: u16 = 1025;
+const GEOGRAPHIC_TYPE: u16 = 2048;
+const PROJECTED_CS_TYPE: u16 = 3072;
+const PROJ_LINEAR_UNITS: u16 = 3076;
+
+/// EPSG codes that name spherical Web Mercator.
+const WEB_MERCATOR: [u32; 5] = [3857, 3785, 900_913, 102_100, 102_113];
+
+/// Read a GeoTIFF DEM.
+pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
+    let file = File::open(path).map_err(|e| io_error(path, e))?;
+    let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+    let mut dec = Decoder::new(BufReader::new(file))
+        .map_err(|e| tiff_error(path, e))?
+        .with_limits(tag_limits(file_len));
+    let err = |e: TiffError| tiff_error(path, e);
+
+    let (w, h) = dec.dimensions().map_err(err)?;
+    let (width, height) = (w as usize, h as usize);
+    let n = sample_count(path, width, height)?;
+    check_layout(path, &mut dec)?;
+    check_chunks_present(path, &mut dec, file_len, width, height)?;
+
+    let nodata = match dec.find_tag(Tag::GdalNodata).map_err(err)? {
+        Some(tiff::decoder::ifd::Value::Ascii(s)) => parse_nodata(path, &s)?,
+        Some(other) => {
+            return Err(corrupt(
+                path,
+                format!("GDAL_NODATA tag is {other:?}, not text"),
+            ));
+        }
+        None => None,
+    };
+
+    let chunk_type = dec.get_chunk_type();
+    let (cw, ch) = dec.chunk_dimensions();
+    let (cw, ch) = (cw as usize, ch as usize);
+    if cw == 0 || ch == 0 {
+        return Err(corrupt(path, format!("chunks of {cw} × {ch} samples")));
+    }
+    // While decoding, the buffer limit is one chunk of at most 8-byte samples.
+    let chunk_bytes = cw
+        .min(width)
+        .saturating_mul(ch.min(height))
+        .saturating_mul(8);
+    let mut limits = tag_limits(file_len);
+    limits.decoding_buffer_size = chunk_bytes.saturating_add(1 << 16);
+    dec = dec.with_limits(limits);
+
+    let mut heights = vec![f32::NAN; n];
+    let across = match chunk_type {
+        ChunkType::Strip => 1,
+        ChunkType::Tile => width.div_ceil(cw),
+    };
+    let count = match chunk_type {
+        ChunkType::Strip => dec.strip_count().map_err(err)?,
+        ChunkType::Tile => dec.tile_count().map_err(err)?,
+    };
+    for idx in 0..count {
+        let (x0, y0) = match chunk_type {
+            ChunkType::Strip => (0, idx as usize * ch),
+            ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
+        };
+        if x0 >= width || y0 >= height {
+            // Extra planes or stray chunks beyond the image: nothing to place.
+            continue;
+        }
+        let chunk = dec.read_chunk(idx).map_err(err)?;
+        let dw = cw.min(width - x0);
+        let dh = ch.min(height - y0);
+        place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)?;
+    }
+
+    let mut hf = Heightfield {
+        width,
+        height,
+        heights,
+        spacing_m: [1.0, 1.0],
+        georef: Georef {
+            crs: Crs::Unknown,
+            origin: [0.0, 0.0],
+            step: [1.0, -1.0],
+            local_tangent: None,
+        },
+        source: file_name(path),
+    };
+    dec = dec.with_limits(tag_limits(file_len));
+    georeference(path, &mut dec, &mut hf)?;
+    Ok(hf)
+}
+
+/// Limits for reading tags: a tag cannot hold more values than the file has
+/// bytes, so a corrupt count is refused instead of allocated. (The `tiff`
+/// crate bounds tag arrays by `decoding_buffer_size`.)
+fn tag_limits(file_len: u64) -> Limits {
+    let mut limits = Limits::default();
+    let values = usize::try_from(file_len)
+        .unwrap_or(usize::MAX)
+        .saturating_add(4096);
+    limits.decoding_buffer_size =
+        values.saturating_mul(std::mem::size_of::<tiff::decoder::ifd::Value>());
+    limits.intermediate_buffer_size = usize::try_from(file_len).unwrap_or(usize::MAX);
+    limits
+}
+
+/// Refuse, with a message a user understands, every layout that is not one
+/// band of numbers.
+fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), DemError> {
+    let err = |e: TiffError| tiff_error(path, e);
+    let samples: u16 = dec
+        .find_tag_unsigned(Tag::SamplesPerPixel)
+        .map_err(err)?
+        .unwrap_or(1);
+    let photometric: u16 = dec
+        .find_tag_unsigned(Tag::PhotometricInterpretation)
+        .map_err(err)?
+        .unwrap_or(1);
+    let bits: u16 = dec
+        .find_tag_unsigned_vec::<u16>(Tag::BitsPerSample)
+        .map_err(err)?
+        .and_then(|v| v.first().copied())
+        .unwrap_or(1);
+    let format: u16 = dec
+        .find_tag_unsigned_vec::<u16>(Tag::SampleFormat)
+        .map_err(err)?
+        .and_then(|v| v.first().copied())
+        .unwrap_or(1);
+    let compression: u16 = dec
+        .find_tag_unsigned(Tag::Compression)
+        .map_err(err)?
+        .unwrap_or(1);
+
+    if samples != 1 {
+        let kind = match (photometric, samples) {
+            (2, 3) => "RGB".to_string(),
+            (2, 4) => "RGBA".to_string(),
+            (5, _) => "CMYK".to_string(),
+            (6, _) => "YCbCr".to_string(),
+            _ => format!("{samples} bands"),
+        };
+        return Err(unsupported(
+            path,
+            format!("{samples} samples per pixel ({kind}); a DEM needs one band"),
+        ));
+    }
+    if photometric == 3 {
+        return Err(unsupported(
+            path,
+            format!("{bits}-bit palette (colour-mapped) image; a DEM needs one band of heights"),
+        ));
+    }
+    let kind = match format {
+        1 => "unsigned integer",
+        2 => "signed integer",
+        3 => "floating-point",
+        _ => {
+            return Err(unsupported(
+                path,
+                format!("sample format {format} (complex or undefined); a DEM needs numbers"),
+            ));
+        }
+    };
+    let ok_bits = match format {
+        3 => matches!(bits, 16 | 32 | 64),
+        _ => matches!(bits, 8 | 16 | 32 | 64),
+    };
+    if !ok_bits {
+        return Err(unsupported(
+            path,
+            format!("{bits}-bit {kind} samples; terrachunk reads 8, 16, 32 and 64 bits"),
+        ));
+    }
+    let compression_name = match compression {
+        1 => None,
+        5 | 8 | 32946 | 32773 => None,
+        2 => Some("CCITT Huffman"),
+        3 | 4 => Some("CCITT fax"),
+        6 | 7 => Some("JPEG"),
+        34887 => Some("LERC"),
+        34925 => Some("LZMA"),
+        50000 => Some("ZSTD"),
+        50001 => Some("WebP"),
+        _ => Some("unknown"),
+    };
+    if let Some(name) = compression_name {
+        return Err(unsupported(
+            path,
+            format!(
+                "compression {compression} ({name}); terrachunk reads uncompressed, LZW, \
+                 DEFLATE and PackBits TIFFs"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Check that every strip or tile the image needs is listed and lies inside
+/// the file, so a truncated download says so instead of a decoder error.
+fn check_chunks_present(
+    path: &Path,
+    dec: &mut Decoder<BufReader<File>>,
+    file_len: u64,
+    width: usize,
+    height: usize,
+) -> Result<(), DemError> {
+    let err = |e: TiffError| tiff_error(path, e);
+    let (offsets_tag, counts_tag, what) = match dec.get_chunk_type() {
+        ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts, "strips"),
+        ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts, "tiles"),
+    };
+    let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(err)?;
+    let counts = dec.get_tag_u64_vec(counts_tag).map_err(err)?;
+    let (cw, ch) = dec.chunk_dimensions();
+    let needed = if cw == 0 || ch == 0 {
+        0
+    } else {
+        width.div_ceil(cw as usize) * height.div_ceil(ch as usize)
+    };
+    if offsets.len() < needed || counts.len() < offsets.len() {
+        return Err(corrupt(
+            path,
+            format!(
+                "the image needs {needed} {what} but the file lists {} offsets and {} sizes",
+                offsets.len(),
+                counts.len()
+            ),
+        ));
+    }
+    let mut expected: u64 = 0;
+    let mut found: u64 = 0;
+    for (&off, &len) in offsets.iter().zip(&counts).take(needed) {
+        expected = expected.saturating_add(len);
+        found = found.saturating_add(len.min(file_len.saturating_sub(off)));
+    }
+    if found < expected {
+        return Err(corrupt(
+            path,
+            format!(
+                "expected {expected} bytes of samples, found {found} (the file is {file_len} \
+                 bytes long; truncated?)"
+            ),
+        ));
+    }
+    // No TIFF compression expands data more than ~2730:1 (LZW's 12-bit codes
+    // of up to 4096 bytes; DEFLATE stops at 1032:1). A header that promises
+    // more samples than that is corrupt; refusing it here avoids allocating
+    // gigabytes for a few bytes of file.
+    let bits: u64 = dec
+        .find_tag_unsigned_vec::<u16>(Tag::BitsPerSample)
+        .map_err(err)?
+        .and_then(|v| v.first().copied())
+        .map_or(8, u64::from);
+    let raw = (width as u64)
+        .saturating_mul(height as u64)
+        .saturating_mul(bits / 8);
+    if raw > expected.saturating_mul(4096).saturating_add(1 << 20) {
+        return Err(corrupt(
+            path,
+            format!(
+                "the header promises {width} × {height} samples ({raw} bytes) but the file \
+                 holds only {expected} bytes of sample data"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// GDAL_NODATA: decimal text, or "nan". Returns the value to map to NaN
+/// (None when nodata is NaN already or absent).
+fn parse_nodata(path: &Path, text: &str) -> Result<Option<f64>, DemError> {
+    let t = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+    if t.is_empty() {
+        return Ok(None);
+    }
+    match t.parse::<f64>() {
+        Ok(v) if v.is_nan() => Ok(None),
+        Ok(v) => Ok(Some(v)),
+        Err(_) => Err(corrupt(
+            path,
+            format!("GDAL_NODATA tag {t:?} is not a number"),
+        )),
+    }
+}
+
+/// Copy one decoded chunk (`dw × dh` samples, rows packed) into the grid at
+/// `(x0, y0)`, turning the declared nodata value into NaN.
+#[allow(clippy::too_many_arguments)]
+fn place(
+    path: &Path,
+    dst: &mut [f32],
+    width: usize,
+    x0: usize,
+    y0: usize,
+    dw: usize,
+    dh: usize,
+    chunk: DecodingResult,
+    nodata: Option<f64>,
+) -> Result<(), DemError> {
+    fn copy<T: Copy>(
+        dst: &mut [f32],
+        width: usize,
+        x0: usize,
+        y0: usize,
+        dw: usize,
+        dh: usize,
+        src: &[T],
+        conv: impl Fn(T) -> f32,
+    ) -> bool {
+        if src.len() < dw * dh {
+            return false;
+        }
+        for r in 0..dh {
+            let start = (y0 + r) * width + x0;
+            let Some(out) = dst.get_mut(start..start + dw) else {
+                return false;
+            };
+            for (o, &v) in out.iter_mut().zip(&src[r * dw..(r + 1) * dw]) {
+                *o = conv(v);
+            }
+        }
+        true
+    }
+    // Integer nodata is compared exactly in the sample's own type; a value
+    // that the type cannot hold never matches.
+    macro_rules! int {
+        ($src:expr, $t:ty) => {{
+            let nd: Option<$t> = nodata.and_then(|v| {
+                if v.fract() == 0.0 && v >= <$t>::MIN as f64 && v <= <$t>::MAX as f64 {
+                    Some(v as $t)
+                } else {
+                    None
+                }
+            });
+            match nd {
+                Some(nd) => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| {
+                    if v == nd { f32::NAN } else { v as f32 }
+                }),
+                None => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| v as f32),
+            }
+        }};
+    }
+    let nd32 = nodata.map(|v| v as f32);
+    let float = |v: f32| if Some(v) == nd32 { f32::NAN } else { v };
+    let ok = match chunk {
+        DecodingResult::U8(s) => int!(s, u8),
+        DecodingResult::I8(s) => int!(s, i8),
+        DecodingResult::U16(s) => int!(s, u16),
+        DecodingResult::I16(s) => int!(s, i16),
+        DecodingResult::U32(s) => int!(s, u32),
+        DecodingResult::I32(s) => int!(s, i32),
+        DecodingResult::U64(s) => int!(s, u64),
+        DecodingResult::I64(s) => int!(s, i64),
+        DecodingResult::F16(s) => copy(dst, width, x0, y0, dw, dh, &s, |v| float(v.to_f32())),
+        DecodingResult::F32(s) => copy(dst, width, x0, y0, dw, dh, &s, float),
+        DecodingResult::F64(s) => {
+            let nd = nodata;
+            copy(dst, width, x0, y0, dw, dh, &s, |v: f64| {
+                if Some(v) == nd { f32::NAN } else { v as f32 }
+            })
+        }
+    };
+    if ok {
+        Ok(())
+    } else {
+        Err(corrupt(
+            path,
+            format!("a chunk at sample ({x0}, {y0}) decoded to fewer samples than its size"),
+        ))
+    }
+}
+
+/// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
+fn georeference(
+    path: &Path,
+    dec: &mut Decoder<BufReader<File>>,
+    hf: &mut Heightfield,
+) -> Result<(), DemError> {
+    let err = |e: TiffError| tiff_error(path, e);
+    let keys = match dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(err)? {
+        Some(v) => geokeys(&v.into_u16_vec().map_err(err)?),
+        None => return Ok(()),
+    };
+    let scale = dec
+        .find_tag(Tag::ModelPixelScaleTag)
+        .map_err(err)?
+        .map(|v| v.into_f64_vec())
+        .transpose()
+        .map_err(err)?;
+    let tie = dec
+        .find_tag(Tag::ModelTiepointTag)
+        .map_err(err)?
+        .map(|v| v.into_f64_vec())
+        .transpose()
+        .map_err(err)?;
+    let transform = dec
+        .find_tag(Tag::ModelTransformationTag)
+        .map_err(err)?
+        .map(|v| v.into_f64_vec())
+        .transpose()
+        .map_err(err)?;
+
+    // Raster (I, J) → model (X, Y) as X = tx + (I − ti)·sx, Y = ty − (J − tj)·sy.
+    let (sx, sy, ti, tj, tx, ty) = match (scale, tie, transform) {
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
+            (s[0], s[1], t[0], t[1], t[3], t[4])
+        }
+        (_, _, Some(m)) if m.len() >= 16 => {
+            // Rotation terms are ignored: the grid stays a grid; the spacing
+            // is the length of each raster axis in model units.
+            let sx = m[0].hypot(m[4]) * if m[0] < 0.0 { -1.0 } else { 1.0 };
+            let sy = m[1].hypot(m[5]) * if m[5] > 0.0 { -1.0 } else { 1.0 };
+            (sx, sy, 0.0, 0.0, m[3], m[7])
+        }
+        _ => return Ok(()),
+    };
+    let point = keys.get(&GT_RASTER_TYPE) == Some(&2);
+    let c = if point { 0.0 } else { 0.5 };
+    let mut origin = [tx + (c - ti) * sx, ty - (c - tj) * sy];
+    let mut step = [sx, -sy];
+    // A grid stored south-up or east-to-west is turned north-up, west-east.
+    if step[1] > 0.0 {
+        flip_rows(hf);
+        origin[1] += step[1] * (hf.height - 1) as f64;
+        step[1] = -step[1];
+    }
+    if step[0] < 0.0 {
+        flip_columns(hf);
+        origin[0] += step[0] * (hf.width - 1) as f64;
+        step[0] = -step[0];
+    }
+
+    let epsg = |key: u16| {
+        keys.get(&key)
+            .copied()
+            .filter(|&c| c != 0 && c != 32767)
+            .map(u32::from)
+    };
+    let model = keys.get(&GT_MODEL_TYPE).copied().unwrap_or_else(|| {
+        if keys.contains_key(&PROJECTED_CS_TYPE) {
+            1
+        } else if keys.contains_key(&GEOGRAPHIC_TYPE) {
+            2
+        } else {
+            0
+        }
+    });
+    hf.georef.origin = origin;
+    hf.georef.step = step;
+    match model {
+        2 => {
+            hf.georef.crs = Crs::Geographic {
+                epsg: epsg(GEOGRAPHIC_TYPE),
+            };
+            hf.apply_local_tangent();
+        }
+        1 => {
+            let code = epsg(PROJECTED_CS_TYPE);
+            hf.georef.crs = Crs::Projected { epsg: code };
+            let unit = match keys.get(&PROJ_LINEAR_UNITS) {
+                Some(9002) => 0.3048,
+                Some(9003) => 1200.0 / 3937.0,
+                Some(9036) => 1000.0,
+                _ => 1.0,
+            };
+            let mut spacing = [step[0].abs() * unit, step[1].abs() * unit];
+            if code.is_some_and(|c| WEB_MERCATOR.contains(&c)) {
+                // Spherical Mercator: y = R·ln tan(π/4 + φ/2), so φ = atan(sinh(y/R)).
+                let y_mid = origin[1] + step[1] * (hf.height - 1) as f64 / 2.0;
+                let lat = (y_mid / 6_378_137.0).sinh().atan();
+                spacing = [spacing[0] * lat.cos(), spacing[1] * lat.cos()];
+            }
+            hf.spacing_m = spacing;
+        }
+        _ => {
+            // Geocentric or user-defined model: the grid keeps 1 m spacing
+            // unless overridden; the origin and step are still recorded.
+        }
+    }
+    Ok(())
+}
+
+/// GeoKeyDirectory → the keys whose value is stored inline (all we need).
+fn geokeys(dir: &[u16]) -> std::collections::BTreeMap<u16, u16> {
+    let mut keys = std::collections::BTreeMap::new();
+    let count = dir.get(3).copied().unwrap_or(0) as usize;
+    for k in 0..count {
+        let Some(entry) = dir.get(4 + 4 * k..8 + 4 * k) else {
+            break;
+        };
+        if entry[1] == 0 {
+            keys.insert(entry[0], entry[3]);
+        }
+    }
+    keys
+}
+
+fn flip_rows(hf: &mut Heightfield) {
+    let w = hf.width;
+    let h = hf.height;
+    for i in 0..h / 2 {
+        let (top, bottom) = hf.heights.split_at_mut((h - 1 - i) * w);
+        top[i * w..(i + 1) * w].swap_with_slice(&mut bottom[..w]);
+    }
+}
+
+fn flip_columns(hf: &mut Heightfield) {
+    for row in hf.heights.chunks_mut(hf.width) {
+        row.reverse();
+    }
+}
+
+/// The `tiff` crate's errors as ours: bad structure is corruption, a missing
+/// feature is unsupported.
+fn tiff_error(path: &Path, e: TiffError) -> DemError {
+    match e {
+        TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            corrupt(path, format!("the TIFF ends early (truncated?): {io}"))
+        }
+        TiffError::IoError(io) => io_error(path, io),
+        TiffError::UnsupportedError(u) => unsupported(path, format!("TIFF: {u}")),
+        TiffError::LimitsExceeded => unsupported(path, "TIFF exceeds the decoder's limits"),
+        other => corrupt(path, format!("not a valid TIFF: {other}")),
+    }
+}

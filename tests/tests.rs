@@ -1,0 +1,3 @@
+//! The one integration-test binary: each stage has its own module.
+
+mod dem;
