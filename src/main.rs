@@ -20,6 +20,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Build a tileset from a DEM (several .hgt tiles or a folder make a mosaic).
+    #[command(allow_negative_numbers = true)]
     Build {
         /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr.
         #[arg(required = true)]

@@ -346,7 +346,9 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
     // count a vertex it merely touches (within f32 rounding) against it.
     let w = (x1 - x0 + 1) as usize;
     let mut best = vec![f64::INFINITY; w * (z1 - z0 + 1) as usize];
+    let mut over_nodata = 0;
     for t in &c.surface.triangles {
+        let (mut seen, mut valid) = (0, 0);
         let [a, b, d] = t.map(|i| verts[i as usize]);
         let zlo = a.z.min(b.z).min(d.z);
         let zhi = a.z.max(b.z).max(d.z);
@@ -359,6 +361,8 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
                     continue; // more than f32 rounding away (grid units)
                 }
                 let s = hf.get(i as usize, j as usize);
+                seen += 1;
+                valid += usize::from(!s.is_nan());
                 if s.is_nan() {
                     continue;
                 }
@@ -366,6 +370,12 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
                 *e = e.min((h - f64::from(s)).abs());
             }
         }
+        if seen > 0 && valid == 0 {
+            over_nodata += 1;
+        }
+    }
+    if over_nodata > 0 {
+        problems.push(format!("{over_nodata} triangles stand over nodata alone"));
     }
     let covered: Vec<bool> = best.iter().map(|e| e.is_finite()).collect();
     let max_err = best.iter().copied().filter(|e| e.is_finite()).fold(0.0, f64::max);

@@ -1,0 +1,416 @@
+//! End to end: real fixtures and tiny exact grids through `build`, then
+//! `verify` (independent re-measurement), the Khronos glTF validator, the
+//! extras' JSON Schemas, determinism across thread counts, and bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+use terrachunk::config::Config;
+use terrachunk::output::tileset::extras_schemas;
+use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::verify::{VerifyReport, verify};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
+}
+
+fn options(dem: &Path, out: &Path, max_error_m: f64, threads: usize) -> BuildOptions {
+    BuildOptions {
+        inputs: vec![dem.to_path_buf()],
+        out: out.to_path_buf(),
+        force: false,
+        config: Config { max_error_m, threads, ..Config::default() },
+        progress: false,
+    }
+}
+
+fn build_ok(dem: &Path, max_error_m: f64) -> (tempfile::TempDir, PathBuf, Report) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let report = build(&options(dem, &out, max_error_m, 0)).unwrap_or_else(|e| panic!("{}: {e}", dem.display()));
+    (tmp, out, report)
+}
+
+fn verified(out: &Path) -> VerifyReport {
+    let r = verify(out, None).unwrap();
+    assert!(r.failures.is_empty(), "verify failed for {}:\n{}", out.display(), r.failures.join("\n"));
+    r
+}
+
+/// Runs the Khronos glTF validator (npm `gltf-validator`) over every .glb.
+fn khronos_validate(out: &Path) -> Value {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    assert!(
+        root.join("node_modules/gltf-validator").exists(),
+        "the Khronos glTF validator is not installed: run `npm ci` in {}",
+        root.display()
+    );
+    let o = Command::new("node").arg(root.join("tests/tools/validate_gltf.js")).arg(out).output().expect("node runs");
+    assert!(o.status.success(), "validator failed: {}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["errors"], 0, "glTF validator errors: {}", v["messages"]);
+    v
+}
+
+fn tileset(out: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("tileset.json")).unwrap()).unwrap()
+}
+
+fn write_asc(dir: &Path, name: &str, w: usize, h: usize, f: impl Fn(usize, usize) -> f64) -> PathBuf {
+    let mut s = format!("ncols {w}\nnrows {h}\nxllcorner 0\nyllcorner 0\ncellsize 10\nNODATA_value -9999\n");
+    for i in 0..h {
+        let row: Vec<String> = (0..w).map(|j| f(i, j).to_string()).collect();
+        s += &row.join(" ");
+        s += "\n";
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, s).unwrap();
+    p
+}
+
+fn all_files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+// ---------------------------------------------------------------- real data
+
+#[test]
+fn real_fixtures_verify_and_pass_the_khronos_validator() {
+    for (name, max_error) in [
+        ("mount_st_helens_30m.tif", 2.0),
+        ("jacksboro_fault_u16.png", 2.0),
+        ("dfw_texas_srtm3.tif", 1.0),
+        ("salish_sea_topobathy_f32.tif", 5.0),
+        ("west_bijou_gully_3m.asc", 0.25),
+    ] {
+        let (_t, out, report) = build_ok(&fixture(name), max_error);
+        let v = verified(&out);
+        let files = khronos_validate(&out);
+        let chunks: usize = report.levels.iter().map(|l| l.chunks).sum();
+        assert_eq!(files["files"], chunks as u64, "{name}: one .glb per chunk");
+        assert_eq!(v.levels.values().map(|l| l.chunks).sum::<usize>(), chunks);
+        tileset_matches_contract(&out, name);
+    }
+}
+
+#[test]
+fn error_is_bounded_per_level_and_falls_with_level() {
+    let (_t, out, report) = build_ok(&fixture("mount_st_helens_30m.tif"), 1.0);
+    let v = verified(&out);
+    let mut last = f64::INFINITY;
+    for (l, lr) in &v.levels {
+        assert!(lr.max_error_m <= lr.delta_m, "level {l}: {} > δ {}", lr.max_error_m, lr.delta_m);
+        assert!(lr.max_error_m < last, "level {l}: error {} did not fall below {last}", lr.max_error_m);
+        last = lr.max_error_m;
+    }
+    let leaf = report.levels.last().unwrap();
+    assert!(leaf.max_error_m <= 1.0, "leaf error {}", leaf.max_error_m);
+    assert_eq!(leaf.leaves, leaf.chunks, "the deepest level has only leaves");
+    for w in report.levels.windows(2) {
+        assert_eq!(w[1].delta_m * 2.0, w[0].delta_m, "δ halves with each level");
+    }
+}
+
+#[test]
+fn output_is_byte_identical_with_one_and_two_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("jacksboro_fault_u16.png");
+    let (a, b) = (tmp.path().join("one"), tmp.path().join("two"));
+    build(&options(&dem, &a, 1.0, 1)).unwrap();
+    build(&options(&dem, &b, 1.0, 2)).unwrap();
+    let (fa, fb) = (all_files(&a), all_files(&b));
+    assert!(fa.len() > 10);
+    assert_eq!(fa.len(), fb.len());
+    for ((pa, da), (pb, db)) in fa.iter().zip(&fb) {
+        assert_eq!(pa, pb);
+        assert!(da == db, "{} differs between 1 and 2 threads", pa.display());
+    }
+}
+
+#[test]
+fn nodata_becomes_holes_and_empty_chunks_are_not_written() {
+    // West Bijou gully: 72 % nodata around an irregular outline.
+    let (_t, out, report) = build_ok(&fixture("west_bijou_gully_3m.asc"), 0.1);
+    verified(&out); // every valid sample covered, no triangle over nodata alone
+    assert_eq!(report.valid_samples, 43 * 89 - 2739);
+    // A grid that is nodata except one corner block: chunks over the rest are absent.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "corner.asc", 300, 300, |i, j| {
+        if i < 60 && j < 60 { ((i * 7 + j * 13) % 17) as f64 } else { -9999.0 }
+    });
+    let out = tmp.path().join("out");
+    let r = build(&options(&dem, &out, 0.5, 0)).unwrap();
+    verified(&out);
+    let deepest = r.levels.last().unwrap();
+    assert!(deepest.chunks <= 4, "only chunks touching the valid corner are made, got {}", deepest.chunks);
+    assert!(!out.join("tiles/1/1/1").exists());
+}
+
+// ------------------------------------------------------------ tiny exact cases
+
+#[test]
+fn two_by_two_grid_is_two_triangles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "g.asc", 2, 2, |i, j| (i * 2 + j) as f64);
+    let out = tmp.path().join("out");
+    let r = build(&options(&dem, &out, 0.01, 0)).unwrap();
+    verified(&out);
+    khronos_validate(&out);
+    assert_eq!(r.levels.len(), 1);
+    assert_eq!(r.levels[0].triangles, 2);
+    assert_eq!(r.levels[0].max_error_m, 0.0);
+}
+
+#[test]
+fn three_by_three_grid_keeps_its_one_bump() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "g.asc", 3, 3, |i, j| if (i, j) == (1, 1) { 5.0 } else { 0.0 });
+    let out = tmp.path().join("out");
+    let r = build(&options(&dem, &out, 0.5, 0)).unwrap();
+    verified(&out);
+    khronos_validate(&out);
+    // The centre is the forced crossing of the dividing lines: all 9 samples, 8 triangles.
+    assert_eq!(r.levels[0].vertices, 9);
+    assert_eq!(r.levels[0].triangles, 8);
+}
+
+#[test]
+fn flat_ground_ends_shallow() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, h) in [("zero.asc", 0.0), ("everest.asc", 8848.0)] {
+        let dem = write_asc(tmp.path(), name, 257, 257, |_, _| h);
+        let out = tmp.path().join(name).with_extension("out");
+        let r = build(&options(&dem, &out, 0.1, 0)).unwrap();
+        verified(&out);
+        assert_eq!(r.levels.len(), 1, "{name}: a flat grid is one leaf chunk");
+        assert!(r.levels[0].triangles <= 8, "{name}: {} triangles", r.levels[0].triangles);
+    }
+}
+
+#[test]
+fn single_spike_is_kept_exactly_and_skirts_reach_below_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "spike.asc", 101, 101, |i, j| if (i, j) == (37, 61) { 10_000.0 } else { 100.0 });
+    let out = tmp.path().join("out");
+    let r = build(&options(&dem, &out, 1.0, 0)).unwrap();
+    let v = verified(&out);
+    assert!(v.levels.values().all(|l| l.max_error_m <= l.delta_m));
+    assert_eq!(r.levels.last().unwrap().max_error_m, 0.0, "the spike and the plane are exact at the leaf");
+}
+
+#[test]
+fn cliff_along_a_diagonal_and_a_chunk_border() {
+    let tmp = tempfile::tempdir().unwrap();
+    let diag = write_asc(tmp.path(), "diag.asc", 301, 301, |i, j| if i + j > 300 { 500.0 } else { 0.0 });
+    let border = write_asc(tmp.path(), "border.asc", 301, 301, |_, j| if j >= 150 { 500.0 } else { 0.0 });
+    for dem in [diag, border] {
+        let out = dem.with_extension("out");
+        build(&options(&dem, &out, 0.5, 0)).unwrap();
+        verified(&out);
+        khronos_validate(&out);
+    }
+}
+
+// ------------------------------------------------------------ the contract
+
+fn tileset_matches_contract(out: &Path, name: &str) {
+    let ts = tileset(out);
+    assert_eq!(ts["asset"]["version"], "1.1", "{name}");
+    let schemas: Vec<(String, Value)> = extras_schemas()
+        .into_iter()
+        .map(|(f, _)| (f.to_string(), serde_json::from_str(&std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas").join(f)).unwrap()).unwrap()))
+        .collect();
+    let tileset_schema = jsonschema::validator_for(&schemas[0].1).unwrap();
+    let tile_schema = jsonschema::validator_for(&schemas[1].1).unwrap();
+    let ex = &ts["extras"]["terrachunk"];
+    assert!(tileset_schema.is_valid(ex), "{name}: tileset extras: {:?}", tileset_schema.iter_errors(ex).map(|e| e.to_string()).collect::<Vec<_>>());
+    for key in ["grid", "spacing_m", "max_error_m", "tau_max_px", "levels", "source", "morph"] {
+        assert!(!ex[key].is_null(), "{name}: extras.terrachunk.{key} missing");
+    }
+    let mut stack = vec![&ts["root"]];
+    let mut content = 0;
+    while let Some(t) = stack.pop() {
+        assert_eq!(t["boundingVolume"]["box"].as_array().map(|b| b.len()), Some(12), "{name}");
+        assert!(t["geometricError"].is_number());
+        if let Some(c) = t.get("content") {
+            content += 1;
+            let te = &t["extras"]["terrachunk"];
+            assert!(tile_schema.is_valid(te), "{name}: tile extras {te}");
+            assert_eq!(t["geometricError"], te["delta_m"]);
+            assert!(out.join(c["uri"].as_str().unwrap()).exists());
+        }
+        if let Some(kids) = t["children"].as_array() {
+            stack.extend(kids);
+        }
+    }
+    assert!(content > 0);
+    assert_eq!(ts["root"]["refine"], "REPLACE");
+}
+
+#[test]
+fn schemas_are_generated_from_the_types_and_current() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas");
+    for (file, text) in extras_schemas() {
+        let path = dir.join(file);
+        if std::env::var_os("TERRACHUNK_UPDATE_SCHEMAS").is_some() {
+            std::fs::write(&path, &text).unwrap();
+        }
+        let on_disk = std::fs::read_to_string(&path).unwrap_or_default();
+        assert!(on_disk == text, "{} is stale: rerun with TERRACHUNK_UPDATE_SCHEMAS=1", path.display());
+    }
+}
+
+#[test]
+fn each_glb_carries_the_morph_target_contract() {
+    let (_t, out, _) = build_ok(&fixture("salish_sea_topobathy_f32.tif"), 5.0);
+    for (path, bytes) in all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")) {
+        let glb = gltf::Glb::from_slice(&bytes).unwrap();
+        let j: Value = serde_json::from_slice(&glb.json).unwrap();
+        let mesh = &j["meshes"][0];
+        assert_eq!(mesh["weights"], serde_json::json!([0.0]), "{}", path.display());
+        assert_eq!(mesh["extras"]["targetNames"], serde_json::json!(["parent"]));
+        let roles: Vec<&str> = mesh["primitives"].as_array().unwrap().iter().map(|p| p["extras"]["role"].as_str().unwrap()).collect();
+        assert_eq!(roles[0], "surface");
+        assert!(roles.iter().all(|r| ["surface", "skirt"].contains(r)));
+        for p in mesh["primitives"].as_array().unwrap() {
+            assert_eq!(p["targets"].as_array().unwrap().len(), 1);
+            assert_eq!(j["accessors"][p["indices"].as_u64().unwrap() as usize]["componentType"], 5123, "u16 indices");
+        }
+        let t = j["nodes"][0]["translation"].as_array().unwrap();
+        assert_eq!(t.len(), 3);
+        assert!(j["nodes"][0].get("rotation").is_none() && j["nodes"][0].get("scale").is_none());
+    }
+}
+
+// ------------------------------------------------------------ verify bites
+
+#[test]
+fn verify_names_the_chunk_whose_vertex_was_moved() {
+    let (_t, out, _) = build_ok(&fixture("dfw_texas_srtm3.tif"), 1.0);
+    verified(&out);
+    // Lift every vertex of one leaf by 3 m: its error bound and its borders break.
+    let victim = all_files(&out).into_iter().map(|(p, _)| p).filter(|p| p.extension().is_some_and(|e| e == "glb")).last().unwrap();
+    let path = out.join(&victim);
+    let bytes = std::fs::read(&path).unwrap();
+    let glb = gltf::Glb::from_slice(&bytes).unwrap();
+    let mut j: Value = serde_json::from_slice(&glb.json).unwrap();
+    let y = j["nodes"][0]["translation"][1].as_f64().unwrap();
+    j["nodes"][0]["translation"][1] = serde_json::json!(y + 3.0);
+    let mut json = serde_json::to_vec(&j).unwrap();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let bin = glb.bin.unwrap().into_owned();
+    let mut out_bytes = Vec::new();
+    out_bytes.extend_from_slice(b"glTF");
+    out_bytes.extend_from_slice(&2u32.to_le_bytes());
+    out_bytes.extend_from_slice(&((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    out_bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out_bytes.extend_from_slice(b"JSON");
+    out_bytes.extend_from_slice(&json);
+    out_bytes.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out_bytes.extend_from_slice(b"BIN\0");
+    out_bytes.extend_from_slice(&bin);
+    std::fs::write(&path, out_bytes).unwrap();
+    let r = verify(&out, None).unwrap();
+    let stem = victim.with_extension("");
+    let parts: Vec<String> = stem.components().skip(1).map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
+    let name = parts.join("/");
+    assert!(r.failures.iter().any(|f| f.contains(&name) && f.contains("exceeds δ")), "{:?}", r.failures);
+    let code = Command::new(env!("CARGO_BIN_EXE_terrachunk")).arg("verify").arg(&out).status().unwrap();
+    assert_eq!(code.code(), Some(1));
+}
+
+// ------------------------------------------------------------ the command line
+
+fn cli(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_terrachunk")).args(args).output().unwrap()
+}
+
+fn assert_bad_input(args: &[&str], out: &Path, says: &str) {
+    let o = cli(args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+    assert!(err.contains(says), "{args:?}: expected {says:?} in {err}");
+    assert!(!out.exists(), "{args:?} left {}", out.display());
+    let parent = out.parent().unwrap();
+    let leftovers: Vec<_> = std::fs::read_dir(parent).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains("terrachunk-tmp")).collect();
+    assert!(leftovers.is_empty(), "temporary directory left behind");
+}
+
+#[test]
+fn bad_input_exits_2_names_the_problem_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = out.to_str().unwrap();
+    let missing = tmp.path().join("nope.tif");
+    assert_bad_input(&["build", missing.to_str().unwrap(), "-o", o], &out, "nope.tif");
+    let truncated = tmp.path().join("N10E010.hgt");
+    std::fs::write(&truncated, vec![0u8; 1001]).unwrap();
+    assert_bad_input(&["build", truncated.to_str().unwrap(), "-o", o], &out, "N10E010.hgt");
+    let good = fixture("west_bijou_gully_3m.asc");
+    let g = good.to_str().unwrap();
+    assert_bad_input(&["build", g, "-o", o, "--max-error", "0"], &out, "max_error_m");
+    assert_bad_input(&["build", g, "-o", o, "--max-error", "-1"], &out, "max_error_m");
+    assert_bad_input(&["build", g, "-o", o, "--spacing", "0"], &out, "spacing");
+    let cfg = tmp.path().join("bad.toml");
+    std::fs::write(&cfg, "max_eror_m = 1.0\n").unwrap();
+    assert_bad_input(&["build", g, "-o", o, "--config", cfg.to_str().unwrap()], &out, "max_eror_m");
+    let strip = write_asc(tmp.path(), "strip.asc", 600, 1, |_, j| j as f64);
+    assert_bad_input(&["build", strip.to_str().unwrap(), "-o", o], &out, "1");
+    let empty = write_asc(tmp.path(), "empty.asc", 10, 10, |_, _| -9999.0);
+    assert_bad_input(&["build", empty.to_str().unwrap(), "-o", o], &out, "nodata");
+}
+
+#[test]
+fn existing_output_needs_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    std::fs::write(out.join("keep.txt"), "mine").unwrap();
+    let g = fixture("west_bijou_gully_3m.asc");
+    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+    assert!(out.join("keep.txt").exists());
+    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap(), "--force"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!out.join("keep.txt").exists() && out.join("tileset.json").exists());
+}
+
+#[test]
+fn summary_report_and_inspect_tell_the_user_what_was_built() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let report = tmp.path().join("report.json");
+    let g = fixture("mount_st_helens_30m.tif");
+    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap(), "--report", report.to_str().unwrap(), "--threads", "2"]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    for word in ["level", "triangles", "bytes per input sample", "peak memory", "time:"] {
+        assert!(text.contains(word), "summary lacks {word}: {text}");
+    }
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["grid"], serde_json::json!([327, 468]));
+    assert_eq!(r["threads"], 2);
+    let o = cli(&["inspect", out.join("tiles/0/0/0.glb").to_str().unwrap()]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("chunk      0/0/0") && text.contains("triangles") && text.contains("morph dy   0.0000..0.0000"), "{text}");
+    let o = cli(&["verify", out.to_str().unwrap()]);
+    assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("OK"));
+}
