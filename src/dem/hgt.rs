@@ -7,9 +7,13 @@
 //! lat = φ₀ + 1 − r/(n−1), lon = λ₀ + c/(n−1), and neighbouring tiles share
 //! their edge row or column. A mosaic therefore takes each shared edge once:
 //! k tiles of n across give k·(n−1)+1 samples. Where two tiles disagree on a
-//! shared sample, the one that has data wins, and between two with data the
-//! tile further south-east (later in north-to-south, west-to-east order)
-//! wins, whatever order the files were given in. Void (−32768) is NaN.
+//! shared sample (void-filled tiles often do, by a few metres), the one that
+//! has data wins, and between two with data the tile further north wins a
+//! shared row and the tile further west a shared column, whatever order the
+//! files were given in. That is what `gdalbuildvrt` does with western-
+//! hemisphere tiles listed by name, so a mosaic built here matches one built
+//! there (the California GeoTIFF of shared/dem, for one). Void (−32768) is
+//! NaN.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -270,8 +274,10 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
     let total = sample_count(&label, width, height)?;
     let mut heights = vec![f32::NAN; total];
 
+    // Later tiles overwrite earlier ones on shared edges: south-east first,
+    // north-west last.
     let mut order: Vec<&Tile> = tiles.iter().collect();
-    order.sort_by_key(|t| (-t.lat, t.lon));
+    order.sort_by_key(|t| (t.lat, -t.lon));
     for t in order {
         let row0 = (lat_max - t.lat) as usize * (n - 1);
         let col0 = (t.lon - lon_min) as usize * (n - 1);
