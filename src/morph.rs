@@ -57,20 +57,35 @@ impl<'m> SurfaceLocator<'m> {
     pub fn locate(&self, x: f64, z: f64) -> Option<(u32, f64)> {
         let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
         let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
-        // Prefer, among triangles that contain the point, the one with the
+        // Among triangles that contain the point, prefer the one with the
         // largest area: on an edge shared with a zero-width sliver, the
-        // sliver's plane is meaningless.
-        let mut best: Option<(f64, f64, u32, f64)> = None; // (outside, -area, t, h)
+        // sliver's plane is meaningless. Only if none contains it (rounding)
+        // fall back to the nearest triangle.
+        let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
+        for &t in bucket {
+            let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+            let det = (p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z);
+            if det == 0.0 {
+                continue;
+            }
+            let l1 = ((x - a.x) * (q.z - a.z) - (q.x - a.x) * (z - a.z)) / det;
+            let l2 = ((p.x - a.x) * (z - a.z) - (x - a.x) * (p.z - a.z)) / det;
+            let l0 = 1.0 - l1 - l2;
+            if l0 >= -1e-12 && l1 >= -1e-12 && l2 >= -1e-12 && inside.is_none_or(|b| det.abs() > b.0) {
+                inside = Some((det.abs(), t, l0 * a.h + l1 * p.h + l2 * q.h));
+            }
+        }
+        if let Some((_, t, h)) = inside {
+            return Some((t, h));
+        }
+        let mut best: Option<(f64, u32, f64)> = None;
         for &t in bucket {
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
             let (outside, h) = barycentric(&a, &p, &q, x, z);
-            let outside = if outside < 1e-9 { 0.0 } else { outside };
-            let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
-            if best.is_none_or(|b| (outside, -area) < (b.0, b.1)) {
-                best = Some((outside, -area, t, h));
+            if best.is_none_or(|b| outside < b.0) {
+                best = Some((outside, t, h));
             }
         }
-        let best = best.map(|b| (b.0, b.2, b.3));
         best.filter(|b| b.0 < 1e-3).map(|b| (b.1, b.2))
     }
 }
@@ -94,17 +109,16 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
         let (dx, dz) = (q.x - p.x, q.z - p.z);
         let len2 = dx * dx + dz * dz;
         let t = if len2 > 0.0 { (((x - p.x) * dx + (z - p.z) * dz) / len2).clamp(0.0, 1.0) } else { 0.0 };
-        (x - p.x - t * dx).hypot(z - p.z - t * dz)
+        ((x - p.x - t * dx).powi(2) + (z - p.z - t * dz).powi(2)).sqrt()
     };
     (seg(a, b).min(seg(b, c)).min(seg(c, a)), h)
 }
 
-/// Height of `parent`'s surface under each of `points` (grid x, z), or the
-/// point's own height for the top level (no parent: delta 0).
-pub fn parent_heights(parent: Option<&ChunkMesh>, points: &[MeshVertex]) -> Vec<f64> {
-    let Some(parent) = parent else {
+/// Height of the parent's surface (through its locator) under each of
+/// `points` (grid x, z), or the point's own height at the top level (delta 0).
+pub fn parent_heights(parent: Option<&SurfaceLocator>, points: &[MeshVertex]) -> Vec<f64> {
+    let Some(loc) = parent else {
         return points.iter().map(|p| p.h).collect();
     };
-    let loc = SurfaceLocator::new(parent);
     points.iter().map(|p| loc.locate(p.x, p.z).map_or(p.h, |(_, h)| h)).collect()
 }

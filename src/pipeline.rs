@@ -21,7 +21,7 @@ use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
-use crate::morph::parent_heights;
+use crate::morph::{SurfaceLocator, parent_heights};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
@@ -283,21 +283,27 @@ fn build_levels(
         tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (k, None)).collect();
     let mut parents: Vec<ChunkMesh> = Vec::new();
     while !work.is_empty() {
+        let locators: Vec<Option<SurfaceLocator>> = parents
+            .par_iter()
+            .enumerate()
+            .map(|(k, p)| work.iter().any(|w| w.1 == Some(k)).then(|| SurfaceLocator::new(p)))
+            .collect();
         let level = work[0].0.level;
         let delta = tree.delta_m[level as usize];
         let bar = progress_bar(opts.progress, work.len() as u64, level, tree.depth());
         let dir = tmp.join("tiles").join(level.to_string());
-        let results: Vec<Result<(ChunkMesh, Chunk, TileRecord), BuildError>> = work
+        let results: Vec<Result<(ChunkMesh, LevelFigures, TileRecord), BuildError>> = work
             .par_iter()
-            .map(|&(key, parent)| {
-                let parent = parent.map(|p| &parents[p]);
+            .map(|&(key, parent_idx)| {
+                let parent = parent_idx.map(|p| &parents[p]);
                 let t = Instant::now();
                 let spec = ChunkSpec { key, footprint: tree.footprint(key), delta_m: delta, parent };
                 let mesh = build_chunk(grid, &spec)?;
                 Timers::add(&timers.mesh, t);
                 let t = Instant::now();
                 let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-                let chunk = assemble(grid, hf.spacing_m, &mesh, parent, margin);
+                let locator = parent_idx.and_then(|p| locators[p].as_ref());
+                let chunk = assemble(grid, hf.spacing_m, &mesh, locator, margin);
                 Timers::add(&timers.skirt_morph, t);
                 let t = Instant::now();
                 let glb = encode_glb(&chunk, &ctx);
@@ -309,7 +315,12 @@ fn build_levels(
                 Timers::add(&timers.write, t);
                 bar.inc(1);
                 let (min, max) = bounds(&chunk);
-                Ok((mesh, chunk, TileRecord { key, min, max, delta_m: delta }))
+                let figures = LevelFigures {
+                    triangles: chunk.surface.triangle_count(),
+                    skirt_triangles: chunk.skirt.triangle_count(),
+                    vertices: chunk.surface.positions.len(),
+                };
+                Ok((mesh, figures, TileRecord { key, min, max, delta_m: delta }))
             })
             .collect();
         bar.finish_and_clear();
@@ -318,23 +329,25 @@ fn build_levels(
         let mut next = Vec::new();
         let mut meshes = Vec::with_capacity(results.len());
         for r in results {
-            let (mesh, chunk, rec) = r?;
+            let (mesh, figures, rec) = r?;
             lr.chunks += 1;
-            lr.triangles += chunk.surface.triangle_count();
-            lr.skirt_triangles += chunk.skirt.triangle_count();
-            lr.vertices += chunk.surface.positions.len();
+            lr.triangles += figures.triangles;
+            lr.skirt_triangles += figures.skirt_triangles;
+            lr.vertices += figures.vertices;
             lr.max_error_m = lr.max_error_m.max(mesh.max_error_m);
             records.push(rec);
             let kids = if mesh.meets(cfg.max_error_m) { Vec::new() } else { tree.children(mesh.key) };
             if kids.is_empty() {
                 lr.leaves += 1;
             }
+            let before = next.len();
             for c in kids {
                 if !has_voids || has_valid(grid, tree, c) {
                     next.push((c, Some(meshes.len())));
                 }
             }
-            meshes.push(mesh);
+            // Only meshes with children to build are kept for the next level.
+            meshes.push(if next.len() > before { mesh } else { ChunkMesh::empty(mesh.key) });
         }
         report.levels.push(lr);
         parents = meshes;
@@ -348,8 +361,15 @@ fn build_levels(
     Ok((report, records))
 }
 
+/// What a level's summary needs from one written chunk.
+struct LevelFigures {
+    triangles: usize,
+    skirt_triangles: usize,
+    vertices: usize,
+}
+
 /// Surface (written triangles only) with normals and morph targets, then skirts.
-fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, parent: Option<&ChunkMesh>, margin_m: f64) -> Chunk {
+fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, parent: Option<&SurfaceLocator>, margin_m: f64) -> Chunk {
     let mut remap = vec![u32::MAX; mesh.vertices.len()];
     let mut used = Vec::new();
     let mut indices = Vec::new();

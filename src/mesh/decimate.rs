@@ -144,25 +144,26 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         push_face(&mut heap, grid, &lines, clip, &cdt, f, target);
     }
     while let Some(c) = heap.pop() {
-        if c.face.index() >= cdt.num_all_faces()
-            || face_key(&cdt, c.face) != c.verts
-        {
-            continue; // stale: the face changed since it was scanned
-        }
+        // A face is its vertex set: spade may move a triangle to another
+        // face slot, so look it up by its vertices rather than its index.
+        let Some(face) = find_face(&cdt, c.verts) else {
+            continue; // stale: the triangle no longer exists
+        };
         if lines.is_vertex(c.i, c.j) {
             // The sample became a vertex of the next triangle over (it sat on
             // this face's edge within rounding): rescan this face without it.
-            push_face(&mut heap, grid, &lines, clip, &cdt, c.face, target);
+            push_face(&mut heap, grid, &lines, clip, &cdt, face, target);
             continue;
         }
-        let touched = insert_interior(&mut cdt, grid, c.j, c.i);
+        let hint = spade::handles::FixedVertexHandle::from_index(c.verts[0] as usize);
+        let touched = insert_interior(&mut cdt, grid, c.j, c.i, hint);
         lines.mark_vertex(c.i, c.j);
-        if c.face.index() < cdt.num_all_faces() && face_key(&cdt, c.face) == c.verts {
+        if let Some(same) = find_face(&cdt, c.verts) {
             // Rounding put the sample just across this face's edge, into the
             // neighbour: this face is unchanged, so scan it again.
-            push_face(&mut heap, grid, &lines, clip, &cdt, c.face, target);
+            push_face(&mut heap, grid, &lines, clip, &cdt, same, target);
         }
-        if cdt.num_vertices() > MAX_VERTICES {
+        if cdt.num_vertices() > MAX_VERTICES && std::env::var_os("TC_NOCAP").is_none() {
             let k = spec.key;
             return Err(MeshError::TooDense { level: k.level, x: k.x, y: k.y, delta_m: spec.delta_m, limit: MAX_VERTICES });
         }
@@ -269,9 +270,16 @@ fn insert_sample(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32) -> spade::handles::
 ///
 /// Returns the vertices whose surrounding faces may have changed (the new
 /// one first).
-fn insert_interior(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32) -> Vec<spade::handles::FixedVertexHandle> {
+fn insert_interior(
+    cdt: &mut Cdt,
+    grid: &Grid,
+    j: u32,
+    i: u32,
+    hint: spade::handles::FixedVertexHandle,
+) -> Vec<spade::handles::FixedVertexHandle> {
     let p = Point2::new(f64::from(j), f64::from(i));
-    if let spade::PositionInTriangulation::OnFace(f) = cdt.locate(p) {
+    let h = grid.vertex_height(i as usize, j as usize);
+    if let spade::PositionInTriangulation::OnFace(f) = cdt.locate_with_hint(p, hint) {
         let mut on_edge = None;
         for e in cdt.face(f).adjacent_edges() {
             if !e.is_constraint_edge() {
@@ -288,13 +296,13 @@ fn insert_interior(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32) -> Vec<spade::han
         }
         if let Some((edge, a, b)) = on_edge {
             cdt.remove_constraint_edge(edge);
-            let v = insert_sample(cdt, grid, j, i);
+            let v = cdt.insert_with_hint(V { p, h }, a).expect("sample positions are finite");
             cdt.add_constraint(a, v);
             cdt.add_constraint(v, b);
             return vec![v, a, b];
         }
     }
-    vec![insert_sample(cdt, grid, j, i)]
+    vec![cdt.insert_with_hint(V { p, h }, hint).expect("sample positions are finite")]
 }
 
 /// Adds one dividing line (vertical when `vertical`, at `coord`) through the
@@ -457,7 +465,6 @@ impl Lines {
 
 struct Candidate {
     err: f64,
-    face: FixedFaceHandle<spade::handles::InnerTag>,
     verts: [u32; 3],
     i: u32,
     j: u32,
@@ -497,7 +504,7 @@ fn push_face(heap: &mut BinaryHeap<Candidate>, grid: &Grid, lines: &Lines, clip:
         }
     });
     if let Some((err, i, j)) = worst {
-        heap.push(Candidate { err, face, verts, i, j });
+        heap.push(Candidate { err, verts, i, j });
     }
 }
 
@@ -507,6 +514,15 @@ fn face_key(cdt: &Cdt, face: FixedFaceHandle<spade::handles::InnerTag>) -> [u32;
     let mut k = cdt.face(face).vertices().map(|v| v.fix().index() as u32);
     k.sort_unstable();
     k
+}
+
+/// The inner face with exactly these (sorted) vertices, if it exists.
+fn find_face(cdt: &Cdt, key: [u32; 3]) -> Option<FixedFaceHandle<spade::handles::InnerTag>> {
+    let v = spade::handles::FixedVertexHandle::from_index(key[0] as usize);
+    if key[0] as usize >= cdt.num_vertices() {
+        return None;
+    }
+    cdt.vertex(v).out_edges().filter_map(|e| e.face().as_inner()).map(|f| f.fix()).find(|&f| face_key(cdt, f) == key)
 }
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
