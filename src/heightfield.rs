@@ -85,10 +85,7 @@ pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
     let w = (1.0 - WGS84_E2 * phi.sin().powi(2)).sqrt();
     let n = WGS84_A / w;
     let m = WGS84_A * (1.0 - WGS84_E2) / (w * w * w);
-    (
-        n * phi.cos() * std::f64::consts::PI / 180.0,
-        m * std::f64::consts::PI / 180.0,
-    )
+    (n * phi.cos() * std::f64::consts::PI / 180.0, m * std::f64::consts::PI / 180.0)
 }
 
 impl Heightfield {

@@ -69,7 +69,8 @@ enum Command {
 }
 
 fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
-    let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    let v: Vec<f64> =
+        s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
     match v.as_slice() {
         [a] => Ok([*a, *a]),
         [a, b] => Ok([*a, *b]),
@@ -116,7 +117,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if spacing.is_some() {
                 cfg.spacing_m = spacing;
             }
-            let opts = BuildOptions { inputs: dem, out: out.clone(), force, config: cfg, progress: std::io::stderr().is_terminal() };
+            let opts = BuildOptions {
+                inputs: dem,
+                out: out.clone(),
+                force,
+                config: cfg,
+                progress: std::io::stderr().is_terminal(),
+            };
             match build(&opts) {
                 Ok(r) => {
                     print_summary(&r, &out);
@@ -143,7 +150,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             println!("{:>5} {:>7} {:>10} {:>12} {:>12}", "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)");
             for (l, c) in &r.levels {
-                println!("{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}", c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m);
+                println!(
+                    "{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}",
+                    c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m
+                );
             }
             println!("{} shared borders compared", r.borders_checked);
             if r.failures.is_empty() {
@@ -175,12 +185,18 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let (mlo, mhi) = dys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| (a.min(d), b.max(d)));
             println!("chunk      {}/{}/{}", c.key.level, c.key.x, c.key.y);
             println!("delta_m    {}", c.delta_m);
-            println!("footprint  columns {}..={}, rows {}..={}", c.footprint[0], c.footprint[1], c.footprint[2], c.footprint[3]);
+            println!(
+                "footprint  columns {}..={}, rows {}..={}",
+                c.footprint[0], c.footprint[1], c.footprint[2], c.footprint[3]
+            );
             println!("surface    {} vertices, {} triangles", c.surface.positions.len(), c.surface.triangles.len());
             if let Some(s) = &c.skirt {
                 println!("skirt      {} vertices, {} triangles", s.positions.len(), s.triangles.len());
             }
-            println!("bounds     x {:.3}..{:.3}  y {:.3}..{:.3}  z {:.3}..{:.3} (m)", lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]);
+            println!(
+                "bounds     x {:.3}..{:.3}  y {:.3}..{:.3}  z {:.3}..{:.3} (m)",
+                lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+            );
             println!("morph dy   {mlo:.4}..{mhi:.4} m");
             Ok(ExitCode::SUCCESS)
         }
@@ -188,8 +204,14 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 }
 
 fn print_summary(r: &Report, out: &std::path::Path) {
-    println!("{} × {} samples ({} valid), spacing {:.3} × {:.3} m", r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]);
-    println!("{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}", "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)");
+    println!(
+        "{} × {} samples ({} valid), spacing {:.3} × {:.3} m",
+        r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]
+    );
+    println!(
+        "{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}",
+        "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)"
+    );
     for l in &r.levels {
         println!(
             "{:>5} {:>10.4} {:>7} {:>7} {:>11} {:>9} {:>11.4}",
@@ -197,15 +219,18 @@ fn print_summary(r: &Report, out: &std::path::Path) {
         );
     }
     let s = &r.seconds;
-    println!(
-        "{} bytes ({:.3} bytes per input sample) in {}",
-        r.bytes,
-        r.bytes_per_sample,
-        out.display()
-    );
+    println!("{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display());
     println!(
         "time: load {:.2} s, plan {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
-        s.load, s.plan, s.chunks, r.thread_seconds.mesh, r.thread_seconds.skirt_morph, r.thread_seconds.write, s.index, s.total, r.threads
+        s.load,
+        s.plan,
+        s.chunks,
+        r.thread_seconds.mesh,
+        r.thread_seconds.skirt_morph,
+        r.thread_seconds.write,
+        s.index,
+        s.total,
+        r.threads
     );
     if let Some(b) = r.peak_rss_bytes {
         println!("peak memory: {:.1} MB", b as f64 / 1e6);

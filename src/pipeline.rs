@@ -160,10 +160,8 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         return Err(BuildError::OutputExists(opts.out.clone()));
     }
     let cfg = &opts.config;
-    let hf = dem::load(
-        &opts.inputs,
-        &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m },
-    )?;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
     let t_load = t0.elapsed();
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");

@@ -99,13 +99,14 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         y: num(&tc["y"], "y")? as u32,
     };
     let fp = &tc["footprint"];
-    let footprint = [num(&fp["x0"], "x0")?, num(&fp["x1"], "x1")?, num(&fp["z0"], "z0")?, num(&fp["z1"], "z1")?]
-        .map(|v| v as u32);
+    let footprint =
+        [num(&fp["x0"], "x0")?, num(&fp["x1"], "x1")?, num(&fp["z0"], "z0")?, num(&fp["z1"], "z1")?].map(|v| v as u32);
     let t = &node["translation"];
     let translation = [num(&t[0], "translation")?, num(&t[1], "translation")?, num(&t[2], "translation")?];
     let mesh = doc.meshes().next().ok_or_else(|| file_err(path, "no mesh"))?;
     let mjson = &json["meshes"][0];
-    let morph_contract = mjson["weights"] == serde_json::json!([0.0]) && mjson["extras"]["targetNames"] == serde_json::json!(["parent"]);
+    let morph_contract =
+        mjson["weights"] == serde_json::json!([0.0]) && mjson["extras"]["targetNames"] == serde_json::json!(["parent"]);
     let mut surface = None;
     let mut skirt = None;
     for (pi, prim) in mesh.primitives().enumerate() {
@@ -116,7 +117,10 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         let mut targets = reader.read_morph_targets();
         let (dpos, _, _) = targets.next().ok_or_else(|| file_err(path, format!("{role}: no morph target")))?;
         let deltas: Vec<[f32; 3]> = dpos.ok_or_else(|| file_err(path, "morph target has no POSITION"))?.collect();
-        if deltas.len() != local.len() || tris.len() % 3 != 0 || tris.iter().any(|&i| i as usize >= local.len()) {
+        if deltas.len() != local.len()
+            || !tris.len().is_multiple_of(3)
+            || tris.iter().any(|&i| i as usize >= local.len())
+        {
             return Err(file_err(path, format!("{role}: inconsistent accessor sizes")));
         }
         let p = Prim {
@@ -186,10 +190,8 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
 
     // Chunks, read in parallel.
     let keys: Vec<ChunkKey> = tiles.keys().copied().collect();
-    let files: Vec<Result<ChunkFile, VerifyError>> = keys
-        .par_iter()
-        .map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y))))
-        .collect();
+    let files: Vec<Result<ChunkFile, VerifyError>> =
+        keys.par_iter().map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y)))).collect();
     let mut chunks = BTreeMap::new();
     for (k, f) in keys.iter().zip(files) {
         match f {
@@ -303,11 +305,21 @@ fn check_tile(
                 }
                 let want = extras.delta_m.get(k.level as usize).copied().unwrap_or(f64::NAN);
                 if ge != Some(te.delta_m) || te.delta_m != want {
-                    failures.push(format!("tile {}: geometricError {:?} / delta_m {} but level δ is {want}", name(k), ge, te.delta_m));
+                    failures.push(format!(
+                        "tile {}: geometricError {:?} / delta_m {} but level δ is {want}",
+                        name(k),
+                        ge,
+                        te.delta_m
+                    ));
                 }
                 if let Some((pk, pd)) = parent {
                     if k.level != pk.level + 1 || (te.delta_m * 2.0 - pd).abs() > 1e-9 * pd {
-                        failures.push(format!("tile {}: δ {} does not halve its parent {}'s δ {pd}", name(k), te.delta_m, name(pk)));
+                        failures.push(format!(
+                            "tile {}: δ {} does not halve its parent {}'s δ {pd}",
+                            name(k),
+                            te.delta_m,
+                            name(pk)
+                        ));
                     }
                     if let Some(e) = tiles.get_mut(&pk) {
                         e.1.push(k);
@@ -335,10 +347,16 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         problems.push(format!("footprint {:?} is outside the {}×{} grid", c.footprint, hf.width, hf.height));
         return f64::INFINITY;
     }
-    let verts: Vec<MeshVertex> =
-        c.surface.positions.iter().map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1] }).collect();
+    let verts: Vec<MeshVertex> = c
+        .surface
+        .positions
+        .iter()
+        .map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1] })
+        .collect();
     let tol = 1e-4 * ((x1 - x0) + (z1 - z0)) as f64;
-    if verts.iter().any(|v| v.x < f64::from(x0) - tol || v.x > f64::from(x1) + tol || v.z < f64::from(z0) - tol || v.z > f64::from(z1) + tol) {
+    if verts.iter().any(|v| {
+        v.x < f64::from(x0) - tol || v.x > f64::from(x1) + tol || v.z < f64::from(z0) - tol || v.z > f64::from(z1) + tol
+    }) {
         problems.push("a surface vertex lies outside the footprint".into());
     }
     // Each sample's error is taken from the triangle that fits it best: on a
@@ -355,7 +373,8 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         let xlo = a.x.min(b.x).min(d.x);
         let xhi = a.x.max(b.x).max(d.x);
         for i in ((zlo - 1e-4).ceil().max(f64::from(z0)) as u32)..=((zhi + 1e-4).floor().min(f64::from(z1)) as u32) {
-            for j in ((xlo - 1e-4).ceil().max(f64::from(x0)) as u32)..=((xhi + 1e-4).floor().min(f64::from(x1)) as u32) {
+            for j in ((xlo - 1e-4).ceil().max(f64::from(x0)) as u32)..=((xhi + 1e-4).floor().min(f64::from(x1)) as u32)
+            {
                 let (outside, h) = barycentric(&a, &b, &d, f64::from(j), f64::from(i));
                 if outside > 1e-4 {
                     continue; // more than f32 rounding away (grid units)
@@ -384,10 +403,16 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         for j in x0..=x1 {
             if !hf.get(i as usize, j as usize).is_nan() && !covered[(i - z0) as usize * w + (j - x0) as usize] {
                 if std::env::var_os("TC_DEBUG").is_some() {
-                    let near: Vec<_> = c.surface.triangles.iter().map(|t| {
-                        let [a, b, d] = t.map(|k| verts[k as usize]);
-                        (barycentric(&a, &b, &d, f64::from(j), f64::from(i)).0, [a, b, d].map(|v| (v.x, v.z)))
-                    }).filter(|x| x.0 < 0.1).collect();
+                    let near: Vec<_> = c
+                        .surface
+                        .triangles
+                        .iter()
+                        .map(|t| {
+                            let [a, b, d] = t.map(|k| verts[k as usize]);
+                            (barycentric(&a, &b, &d, f64::from(j), f64::from(i)).0, [a, b, d].map(|v| (v.x, v.z)))
+                        })
+                        .filter(|x| x.0 < 0.1)
+                        .collect();
                     eprintln!("UNCOVERED {} ({j}, {i}) near {near:?}", name(c.key));
                 }
                 uncovered += 1;
@@ -497,8 +522,7 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
                 }
             }
         }
-        let verts: Vec<[f64; 3]> =
-            f.surface.positions.iter().zip(&on).filter(|(_, o)| **o).map(|(p, _)| *p).collect();
+        let verts: Vec<[f64; 3]> = f.surface.positions.iter().zip(&on).filter(|(_, o)| **o).map(|(p, _)| *p).collect();
         (verts, edges)
     };
     let (va, ea) = on_line(a);

@@ -15,9 +15,7 @@ use terrachunk::heightfield::{Crs, Heightfield};
 // ---------------------------------------------------------------- helpers
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
 }
 
 fn load1(path: &Path) -> Result<Heightfield, DemError> {
@@ -68,18 +66,12 @@ fn kind(e: &DemError) -> &'static str {
 #[track_caller]
 fn assert_fails(r: Result<Heightfield, DemError>, variant: &str, names: &str, says: &str) {
     let e = match r {
-        Ok(hf) => panic!(
-            "expected {variant} error, loaded {} × {}",
-            hf.width, hf.height
-        ),
+        Ok(hf) => panic!("expected {variant} error, loaded {} × {}", hf.width, hf.height),
         Err(e) => e,
     };
     let msg = e.to_string();
     assert_eq!(kind(&e), variant, "wrong variant for: {msg}");
-    assert!(
-        msg.contains(names),
-        "message does not name {names:?}: {msg}"
-    );
+    assert!(msg.contains(names), "message does not name {names:?}: {msg}");
     assert!(msg.contains(says), "message does not say {says:?}: {msg}");
 }
 
@@ -97,18 +89,14 @@ fn write_asc(dir: &Path, name: &str, text: &str) -> PathBuf {
 
 /// A 16-bit grayscale PNG of `w × h` heights.
 fn write_png16(path: &Path, w: u32, h: u32, data: &[u16]) {
-    let img =
-        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, data.to_vec()).unwrap();
+    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, data.to_vec()).unwrap();
     img.save(path).unwrap();
 }
 
 /// A one-channel EXR per named channel, float32 samples.
 fn write_exr(path: &Path, w: usize, h: usize, channels: Vec<(&str, exr::prelude::FlatSamples)>) {
     use exr::prelude::*;
-    let list: Vec<AnyChannel<FlatSamples>> = channels
-        .into_iter()
-        .map(|(name, s)| AnyChannel::new(name, s))
-        .collect();
+    let list: Vec<AnyChannel<FlatSamples>> = channels.into_iter().map(|(name, s)| AnyChannel::new(name, s)).collect();
     let layer = Layer::new(
         (w, h),
         LayerAttributes::default(),
@@ -182,10 +170,7 @@ fn asc_west_bijou_gully_matches_readme() {
     assert_eq!(hf.georef.crs, Crs::Projected { epsg: None });
     // xllcorner 559705, yllcorner 4380220: the NW sample centre is half a
     // cell in from the corner, 89 rows up.
-    assert_eq!(
-        hf.georef.origin,
-        [559_706.5, 4_380_220.0 + 89.0 * 3.0 - 1.5]
-    );
+    assert_eq!(hf.georef.origin, [559_706.5, 4_380_220.0 + 89.0 * 3.0 - 1.5]);
     assert_eq!(hf.source, "west_bijou_gully_3m.asc");
 }
 
@@ -214,11 +199,7 @@ fn geotiff_tiled_dfw_texas_matches_readme() {
     assert_close(sx, 77.9, 0.5);
     assert_close(sz, 92.6, 0.5);
     assert_close(hf.georef.step[0], 1.0 / 1200.0, 1e-9);
-    let lt = hf
-        .georef
-        .local_tangent
-        .as_ref()
-        .expect("geographic → local tangent");
+    let lt = hf.georef.local_tangent.as_ref().expect("geographic → local tangent");
     assert_close(lt.lat0_deg, 32.67, 0.01);
     assert_close(lt.lon0_deg, -97.33, 0.01);
 }
@@ -244,10 +225,7 @@ fn png_16bit_jacksboro_fault_matches_readme() {
     // No georeference in a PNG: 1 m until the user says otherwise.
     assert_eq!(hf.spacing_m, [1.0, 1.0]);
     assert_eq!(hf.georef.crs, Crs::Unknown);
-    let opts = LoadOptions {
-        spacing_m: Some([74.4, 92.6]),
-        ..Default::default()
-    };
+    let opts = LoadOptions { spacing_m: Some([74.4, 92.6]), ..Default::default() };
     let hf = load(&[fixture("jacksboro_fault_u16.png")], &opts).unwrap();
     assert_eq!(hf.spacing_m, [74.4, 92.6]);
 }
@@ -315,30 +293,17 @@ fn hgt_mosaic_folder_takes_shared_edges_once() {
 
 #[test]
 fn hgt_mosaic_list_equals_folder() {
-    let paths: Vec<PathBuf> = TILES
-        .iter()
-        .rev()
-        .map(|n| fixture(&format!("hgt_mosaic/{n}")))
-        .collect();
+    let paths: Vec<PathBuf> = TILES.iter().rev().map(|n| fixture(&format!("hgt_mosaic/{n}"))).collect();
     let list = load(&paths, &LoadOptions::default()).unwrap();
     let folder = ok(&fixture("hgt_mosaic"));
-    assert_eq!(
-        list.source,
-        "N00E000.hgt+N00E001.hgt+N01E000.hgt+N01E001.hgt"
-    );
-    assert_eq!(
-        format!("{:?}", list.heights),
-        format!("{:?}", folder.heights)
-    );
+    assert_eq!(list.source, "N00E000.hgt+N00E001.hgt+N01E000.hgt+N01E001.hgt");
+    assert_eq!(format!("{:?}", list.heights), format!("{:?}", folder.heights));
     assert_eq!(list.spacing_m, folder.spacing_m);
 }
 
 #[test]
 fn hgt_mosaic_of_two_tiles_is_21_wide() {
-    let paths = [
-        fixture("hgt_mosaic/N00E001.hgt"),
-        fixture("hgt_mosaic/N00E000.hgt"),
-    ];
+    let paths = [fixture("hgt_mosaic/N00E001.hgt"), fixture("hgt_mosaic/N00E000.hgt")];
     let hf = load(&paths, &LoadOptions::default()).unwrap();
     assert_eq!((hf.width, hf.height), (21, 11));
     assert_eq!(hf.georef.origin, [0.0, 1.0]);
@@ -390,20 +355,12 @@ fn bt_int16_kilauea_crop() {
 #[test]
 fn bt_int32_float32_and_vertical_scale() {
     let base = ok(&fixture("kilauea_crop_i16.bt"));
-    let data: Vec<f64> = base
-        .heights
-        .iter()
-        .map(|&h| if h.is_nan() { -32768.0 } else { f64::from(h) })
-        .collect();
+    let data: Vec<f64> = base.heights.iter().map(|&h| if h.is_nan() { -32768.0 } else { f64::from(h) }).collect();
     let dir = tempfile::tempdir().unwrap();
     let edges = [0.0, 64.0 * 30.0, 0.0, 48.0 * 30.0];
     for (bytes, float) in [(4, false), (4, true)] {
         let p = dir.path().join(format!("k{bytes}{float}.bt"));
-        std::fs::write(
-            &p,
-            bt_bytes(64, 48, bytes, float, 1, 5, 6326, edges, 1.0, &data),
-        )
-        .unwrap();
+        std::fs::write(&p, bt_bytes(64, 48, bytes, float, 1, 5, 6326, edges, 1.0, &data)).unwrap();
         let hf = ok(&p);
         assert_eq!(format!("{:?}", hf.heights), format!("{:?}", base.heights));
     }
@@ -411,25 +368,14 @@ fn bt_int32_float32_and_vertical_scale() {
     let mut halved = data.clone();
     halved[0] = f64::NAN;
     let p = dir.path().join("half.bt");
-    std::fs::write(
-        &p,
-        bt_bytes(64, 48, 4, true, 1, 5, 6326, edges, 0.5, &halved),
-    )
-    .unwrap();
+    std::fs::write(&p, bt_bytes(64, 48, 4, true, 1, 5, 6326, edges, 0.5, &halved)).unwrap();
     let hf = ok(&p);
     assert!(hf.heights[0].is_nan());
-    assert_eq!(
-        stats(&hf),
-        (0.0, 159.0, 450 + usize::from(!base.heights[0].is_nan()))
-    );
+    assert_eq!(stats(&hf), (0.0, 159.0, 450 + usize::from(!base.heights[0].is_nan())));
     // Degrees (units 0) make a geographic grid on the local tangent plane.
     let p = dir.path().join("deg.bt");
     let edges = [6.0, 6.0 + 64.0 / 1200.0, 43.0, 43.0 + 48.0 / 1200.0];
-    std::fs::write(
-        &p,
-        bt_bytes(64, 48, 2, false, 0, 0, 6326, edges, 1.0, &data),
-    )
-    .unwrap();
+    std::fs::write(&p, bt_bytes(64, 48, 2, false, 0, 0, 6326, edges, 1.0, &data)).unwrap();
     let hf = ok(&p);
     assert_eq!(hf.georef.crs, Crs::Geographic { epsg: Some(4326) });
     assert_close(hf.spacing_m[1], 92.6, 0.2);
@@ -460,12 +406,7 @@ fn exr_half_float_and_channel_choice() {
 
     let p = dir.path().join("rgb.exr");
     let zeros = || FlatSamples::F32(vec![0.0; 12]);
-    write_exr(
-        &p,
-        4,
-        3,
-        vec![("B", zeros()), ("G", zeros()), ("R", half())],
-    );
+    write_exr(&p, 4, 3, vec![("B", zeros()), ("G", zeros()), ("R", half())]);
     assert_eq!(ok(&p).heights, data, "R is preferred over G and B");
 
     let p = dir.path().join("uv.exr");
@@ -501,10 +442,7 @@ fn png_terrain_rgb_fuji_crop() {
 
 #[test]
 fn vertical_scale_multiplies_heights() {
-    let opts = LoadOptions {
-        vertical_scale: Some(0.3048),
-        ..Default::default()
-    };
+    let opts = LoadOptions { vertical_scale: Some(0.3048), ..Default::default() };
     let hf = load(&[fixture("dfw_texas_srtm3.tif")], &opts).unwrap();
     let (min, max, _) = stats(&hf);
     assert_close(f64::from(min), 147.0 * 0.3048, 1e-3);
@@ -542,35 +480,20 @@ fn tiny_exact_asc_grid() {
 
 #[test]
 fn missing_file_is_io_error_naming_it() {
-    for name in [
-        "nope.tif", "nope.hgt", "nope.asc", "nope.bt", "nope.png", "nope.exr",
-    ] {
+    for name in ["nope.tif", "nope.hgt", "nope.asc", "nope.bt", "nope.png", "nope.exr"] {
         assert_fails(load1(&fixture(name)), "Io", name, "cannot read");
     }
-    let r = load(
-        &[fixture("hgt_mosaic/N00E000.hgt"), fixture("N05E005.hgt")],
-        &LoadOptions::default(),
-    );
+    let r = load(&[fixture("hgt_mosaic/N00E000.hgt"), fixture("N05E005.hgt")], &LoadOptions::default());
     assert_fails(r, "Io", "N05E005.hgt", "cannot read");
 }
 
 #[test]
 fn no_input_and_unknown_format() {
-    assert_fails(
-        load(&[], &LoadOptions::default()),
-        "Invalid",
-        "",
-        "no input file",
-    );
+    assert_fails(load(&[], &LoadOptions::default()), "Invalid", "", "no input file");
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("heights.xyz");
     std::fs::write(&p, b"1 2 3\n4 5 6\n").unwrap();
-    assert_fails(
-        load1(&p),
-        "Unsupported",
-        "heights.xyz",
-        "not a recognised DEM",
-    );
+    assert_fails(load1(&p), "Unsupported", "heights.xyz", "not a recognised DEM");
 }
 
 #[test]
@@ -578,11 +501,7 @@ fn hgt_of_wrong_size_is_corrupt() {
     let dir = tempfile::tempdir().unwrap();
     let good = std::fs::read(fixture("hgt_mosaic/N00E000.hgt")).unwrap();
     // Truncated by one byte, by one sample, and a single sample.
-    for (len, name) in [
-        (good.len() - 1, "N10E010.hgt"),
-        (good.len() - 2, "N11E011.hgt"),
-        (2, "N12E012.hgt"),
-    ] {
+    for (len, name) in [(good.len() - 1, "N10E010.hgt"), (good.len() - 2, "N11E011.hgt"), (2, "N12E012.hgt")] {
         let p = dir.path().join(name);
         std::fs::write(&p, &good[..len]).unwrap();
         let says = format!("{len} bytes is not a square grid of int16");
@@ -597,10 +516,7 @@ fn hgt_without_position_in_its_name() {
     std::fs::copy(fixture("hgt_mosaic/N00E000.hgt"), &p).unwrap();
     assert_fails(load1(&p), "Invalid", "verdon.hgt", "N43E006.hgt");
     // With the spacing given it loads as a plain grid.
-    let opts = LoadOptions {
-        spacing_m: Some([90.0, 90.0]),
-        ..Default::default()
-    };
+    let opts = LoadOptions { spacing_m: Some([90.0, 90.0]), ..Default::default() };
     let hf = load(&[p], &opts).unwrap();
     assert_eq!((hf.width, hf.height, hf.georef.crs), (11, 11, Crs::Unknown));
 }
@@ -608,11 +524,7 @@ fn hgt_without_position_in_its_name() {
 #[test]
 fn truncated_tif_is_corrupt() {
     let dir = tempfile::tempdir().unwrap();
-    for name in [
-        "mount_st_helens_30m.tif",
-        "dfw_texas_srtm3.tif",
-        "california_crop_deflate.tif",
-    ] {
+    for name in ["mount_st_helens_30m.tif", "dfw_texas_srtm3.tif", "california_crop_deflate.tif"] {
         let bytes = std::fs::read(fixture(name)).unwrap();
         let p = dir.path().join(name);
         std::fs::write(&p, &bytes[..bytes.len() * 3 / 4]).unwrap();
@@ -624,48 +536,28 @@ fn truncated_tif_is_corrupt() {
     let bytes = std::fs::read(fixture("mount_st_helens_30m.tif")).unwrap();
     let p = dir.path().join("cut.tif");
     std::fs::write(&p, &bytes[..bytes.len() - 1000]).unwrap();
-    assert_fails(
-        load1(&p),
-        "Corrupt",
-        "cut.tif",
-        "expected 306072 bytes of samples, found 305072",
-    );
+    assert_fails(load1(&p), "Corrupt", "cut.tif", "expected 306072 bytes of samples, found 305072");
 }
 
 #[test]
 fn truncated_bt_png_exr_asc_are_corrupt() {
     let dir = tempfile::tempdir().unwrap();
     let cases = [
-        (
-            "kilauea_crop_i16.bt",
-            "expected 6144 bytes of samples, found 3072",
-        ),
+        ("kilauea_crop_i16.bt", "expected 6144 bytes of samples, found 3072"),
         ("kattegat_crop_u8.png", "PNG ends early"),
         ("seamount_crop_f32.exr", "OpenEXR"),
-        (
-            "west_bijou_gully_3m.asc",
-            "values, expected ncols × nrows = 43 × 89 = 3827",
-        ),
+        ("west_bijou_gully_3m.asc", "values, expected ncols × nrows = 43 × 89 = 3827"),
     ];
     for (name, says) in cases {
         let bytes = std::fs::read(fixture(name)).unwrap();
-        let keep = if name.ends_with(".bt") {
-            256 + 3072
-        } else {
-            bytes.len() / 2
-        };
+        let keep = if name.ends_with(".bt") { 256 + 3072 } else { bytes.len() / 2 };
         let p = dir.path().join(name);
         std::fs::write(&p, &bytes[..keep]).unwrap();
         assert_fails(load1(&p), "Corrupt", name, says);
     }
     let p = dir.path().join("header.bt");
     std::fs::write(&p, b"binterr1.3").unwrap();
-    assert_fails(
-        load1(&p),
-        "Corrupt",
-        "header.bt",
-        "shorter than the 256-byte BT header",
-    );
+    assert_fails(load1(&p), "Corrupt", "header.bt", "shorter than the 256-byte BT header");
 }
 
 #[test]
@@ -681,22 +573,14 @@ fn infinite_heights_are_invalid() {
 
     let p = dir.path().join("inf.tif");
     let mut enc = tiff::encoder::TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
-    enc.write_image::<tiff::encoder::colortype::Gray32Float>(4, 3, &data)
-        .unwrap();
+    enc.write_image::<tiff::encoder::colortype::Gray32Float>(4, 3, &data).unwrap();
     assert_fails(load1(&p), "Invalid", "inf.tif", "2 samples are infinite");
 
-    let p = write_asc(
-        dir.path(),
-        "inf.asc",
-        "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 inf\n3 4\n",
-    );
+    let p = write_asc(dir.path(), "inf.asc", "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 inf\n3 4\n");
     assert_fails(load1(&p), "Invalid", "inf.asc", "1 samples are infinite");
 
     // A vertical scale that overflows f32 is caught too.
-    let opts = LoadOptions {
-        vertical_scale: Some(1e38),
-        ..Default::default()
-    };
+    let opts = LoadOptions { vertical_scale: Some(1e38), ..Default::default() };
     let r = load(&[fixture("dfw_texas_srtm3.tif")], &opts);
     assert_fails(r, "Invalid", "dfw_texas_srtm3.tif", "samples are infinite");
 }
@@ -706,12 +590,7 @@ fn all_nodata_is_invalid() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("N20E020.hgt");
     std::fs::write(&p, i16::MIN.to_be_bytes().repeat(121)).unwrap();
-    assert_fails(
-        load1(&p),
-        "Invalid",
-        "N20E020.hgt",
-        "all 121 samples are nodata",
-    );
+    assert_fails(load1(&p), "Invalid", "N20E020.hgt", "all 121 samples are nodata");
 
     let p = write_asc(
         dir.path(),
@@ -721,12 +600,7 @@ fn all_nodata_is_invalid() {
     assert_fails(load1(&p), "Invalid", "void.asc", "all 4 samples are nodata");
 
     let p = dir.path().join("nan.exr");
-    write_exr(
-        &p,
-        2,
-        2,
-        vec![("Y", exr::prelude::FlatSamples::F32(vec![f32::NAN; 4]))],
-    );
+    write_exr(&p, 2, 2, vec![("Y", exr::prelude::FlatSamples::F32(vec![f32::NAN; 4]))]);
     assert_fails(load1(&p), "Invalid", "nan.exr", "all 4 samples are nodata");
 }
 
@@ -735,39 +609,17 @@ fn one_by_n_grid_is_invalid() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("ridge.png");
     write_png16(&p, 1, 600, &[100; 600]);
-    assert_fails(
-        load1(&p),
-        "Invalid",
-        "ridge.png",
-        "grid is 1 × 600 samples; need at least 2 × 2",
-    );
-    let p = write_asc(
-        dir.path(),
-        "row.asc",
-        "ncols 3\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n",
-    );
+    assert_fails(load1(&p), "Invalid", "ridge.png", "grid is 1 × 600 samples; need at least 2 × 2");
+    let p = write_asc(dir.path(), "row.asc", "ncols 3\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n");
     assert_fails(load1(&p), "Invalid", "row.asc", "grid is 3 × 1 samples");
 }
 
 #[test]
 fn zero_or_negative_spacing_is_invalid() {
     let dfw = fixture("dfw_texas_srtm3.tif");
-    for spacing in [
-        [0.0, 30.0],
-        [30.0, -1.0],
-        [f64::NAN, 30.0],
-        [f64::INFINITY, 1.0],
-    ] {
-        let opts = LoadOptions {
-            spacing_m: Some(spacing),
-            ..Default::default()
-        };
-        assert_fails(
-            load(std::slice::from_ref(&dfw), &opts),
-            "Invalid",
-            "dfw_texas_srtm3.tif",
-            "spacing override",
-        );
+    for spacing in [[0.0, 30.0], [30.0, -1.0], [f64::NAN, 30.0], [f64::INFINITY, 1.0]] {
+        let opts = LoadOptions { spacing_m: Some(spacing), ..Default::default() };
+        assert_fails(load(std::slice::from_ref(&dfw), &opts), "Invalid", "dfw_texas_srtm3.tif", "spacing override");
     }
     // A file that says its cells are 0 or −3 m wide.
     let dir = tempfile::tempdir().unwrap();
@@ -777,22 +629,14 @@ fn zero_or_negative_spacing_is_invalid() {
             name,
             &format!("ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize {cs}\n1 2\n3 4\n"),
         );
-        assert_fails(
-            load1(&p),
-            "Invalid",
-            name,
-            &format!("sample spacing {cs} × {cs} m"),
-        );
+        assert_fails(load1(&p), "Invalid", name, &format!("sample spacing {cs} × {cs} m"));
     }
 }
 
 #[test]
 fn bad_vertical_scale_is_invalid() {
     for s in [0.0, f64::NAN, f64::INFINITY] {
-        let opts = LoadOptions {
-            vertical_scale: Some(s),
-            ..Default::default()
-        };
+        let opts = LoadOptions { vertical_scale: Some(s), ..Default::default() };
         let r = load(&[fixture("dfw_texas_srtm3.tif")], &opts);
         assert_fails(r, "Invalid", "dfw_texas_srtm3.tif", "vertical scale");
     }
@@ -821,10 +665,7 @@ fn mismatched_mosaic_tiles_are_invalid() {
     assert_fails(r, "Invalid", "N00E000.hgt", "are the same tile (N00E000)");
 
     // Three of four tiles: not a rectangle.
-    let three: Vec<PathBuf> = TILES[..3]
-        .iter()
-        .map(|n| fixture(&format!("hgt_mosaic/{n}")))
-        .collect();
+    let three: Vec<PathBuf> = TILES[..3].iter().map(|n| fixture(&format!("hgt_mosaic/{n}"))).collect();
     let r = load(&three, &LoadOptions::default());
     assert_fails(
         r,
@@ -840,16 +681,8 @@ fn mismatched_mosaic_tiles_are_invalid() {
     assert_fails(r, "Invalid", "tile.hgt", "mismatched mosaic tiles");
 
     // Another format in the list.
-    let r = load(
-        &[west, fixture("dfw_texas_srtm3.tif")],
-        &LoadOptions::default(),
-    );
-    assert_fails(
-        r,
-        "Unsupported",
-        "dfw_texas_srtm3.tif",
-        "only SRTM .hgt tiles",
-    );
+    let r = load(&[west, fixture("dfw_texas_srtm3.tif")], &LoadOptions::default());
+    assert_fails(r, "Unsupported", "dfw_texas_srtm3.tif", "only SRTM .hgt tiles");
 
     // A folder without tiles.
     let empty = d.join("empty");
@@ -863,33 +696,19 @@ fn unsupported_tiff_layouts_say_what_they_are() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("photo.tif");
     let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
-    enc.write_image::<colortype::RGB8>(4, 3, &[7u8; 36])
-        .unwrap();
-    assert_fails(
-        load1(&p),
-        "Unsupported",
-        "photo.tif",
-        "3 samples per pixel (RGB); a DEM needs one band",
-    );
+    enc.write_image::<colortype::RGB8>(4, 3, &[7u8; 36]).unwrap();
+    assert_fails(load1(&p), "Unsupported", "photo.tif", "3 samples per pixel (RGB); a DEM needs one band");
 
     let p = dir.path().join("rgba.tif");
     let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
-    enc.write_image::<colortype::RGBA16>(4, 3, &[7u16; 48])
-        .unwrap();
-    assert_fails(
-        load1(&p),
-        "Unsupported",
-        "rgba.tif",
-        "4 samples per pixel (RGBA)",
-    );
+    enc.write_image::<colortype::RGBA16>(4, 3, &[7u16; 48]).unwrap();
+    assert_fails(load1(&p), "Unsupported", "rgba.tif", "4 samples per pixel (RGBA)");
 
     // A palette image: an 8-bit grayscale TIFF relabelled as RGB palette.
     let p = dir.path().join("palette.tif");
     let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
     let mut img = enc.new_image::<colortype::Gray8>(4, 3).unwrap();
-    img.encoder()
-        .write_tag(tiff::tags::Tag::PhotometricInterpretation, 3u16)
-        .unwrap();
+    img.encoder().write_tag(tiff::tags::Tag::PhotometricInterpretation, 3u16).unwrap();
     img.write_data(&[1u8; 12]).unwrap();
     assert_fails(load1(&p), "Unsupported", "palette.tif", "8-bit palette");
 }
@@ -907,11 +726,8 @@ fn other_tiff_encodings_load_the_same_heights() {
         ("deflate.tif", Compression::Deflate(DeflateLevel::Fast)),
     ] {
         let p = dir.path().join(name);
-        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap())
-            .unwrap()
-            .with_compression(compression);
-        enc.write_image::<colortype::GrayI16>(64, 48, &data)
-            .unwrap();
+        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap().with_compression(compression);
+        enc.write_image::<colortype::GrayI16>(64, 48, &data).unwrap();
         let hf = ok(&p);
         assert_eq!(hf.heights, base.heights, "{name}");
         assert_eq!(hf.georef.crs, Crs::Unknown, "no GeoKeys");
@@ -921,8 +737,7 @@ fn other_tiff_encodings_load_the_same_heights() {
     let p = dir.path().join("f64.tif");
     let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
     let f: Vec<f64> = base.heights.iter().map(|&h| f64::from(h)).collect();
-    enc.write_image::<colortype::Gray64Float>(64, 48, &f)
-        .unwrap();
+    enc.write_image::<colortype::Gray64Float>(64, 48, &f).unwrap();
     assert_eq!(ok(&p).heights, base.heights);
 }
 
@@ -934,23 +749,9 @@ fn corrupt_ascii_token_names_the_line() {
         "typo.asc",
         "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\nNODATA_value -9999\n1 2 3\n4 5x 6\n",
     );
-    assert_fails(
-        load1(&p),
-        "Corrupt",
-        "typo.asc",
-        "line 8: \"5x\" is not a number",
-    );
-    let p = write_asc(
-        dir.path(),
-        "short.asc",
-        "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n4 5\n",
-    );
-    assert_fails(
-        load1(&p),
-        "Corrupt",
-        "short.asc",
-        "found 5 values, expected ncols × nrows = 3 × 2 = 6",
-    );
+    assert_fails(load1(&p), "Corrupt", "typo.asc", "line 8: \"5x\" is not a number");
+    let p = write_asc(dir.path(), "short.asc", "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n4 5\n");
+    assert_fails(load1(&p), "Corrupt", "short.asc", "found 5 values, expected ncols × nrows = 3 × 2 = 6");
     let p = write_asc(dir.path(), "nohead.asc", "nrows 2\ncellsize 1\n1 2\n3 4\n");
     assert_fails(load1(&p), "Corrupt", "nohead.asc", "no ncols");
 }
@@ -959,10 +760,7 @@ fn corrupt_ascii_token_names_the_line() {
 /// `TERRACHUNK_FUZZ_ROUNDS` (default 24) sets the mutations per fixture.
 #[test]
 fn mangled_fixtures_never_panic() {
-    let rounds: usize = std::env::var("TERRACHUNK_FUZZ_ROUNDS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(24);
+    let rounds: usize = std::env::var("TERRACHUNK_FUZZ_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(24);
     let dir = tempfile::tempdir().unwrap();
     let names = [
         "west_bijou_gully_3m.asc",
@@ -993,11 +791,7 @@ fn mangled_fixtures_never_panic() {
             } else {
                 // Flip a few bytes, mostly in the header where sizes live.
                 for _ in 0..4 {
-                    let span = if k % 2 == 0 {
-                        bytes.len().min(512)
-                    } else {
-                        bytes.len()
-                    };
+                    let span = if k % 2 == 0 { bytes.len().min(512) } else { bytes.len() };
                     let i = (next() as usize) % span;
                     b[i] ^= (next() as u8) | 1;
                 }
@@ -1015,164 +809,28 @@ fn mangled_fixtures_never_panic() {
 const CORPUS: &[(&str, usize, usize, f64, f64, usize, f64)] = &[
     ("benelux_gtopo30.tif", 720, 480, -6.0, 817.0, 91761, 0.0),
     ("bigtujunga_30m_utm11.tif", 1197, 643, 315.0, 2295.0, 0, 0.0),
-    (
-        "california_srtm3_8401x4801.tif",
-        8401,
-        4801,
-        -85.0,
-        4404.0,
-        0,
-        0.0,
-    ),
+    ("california_srtm3_8401x4801.tif", 8401, 4801, -85.0, 4404.0, 0, 0.0),
     ("dfw_texas_srtm3.tif", 367, 359, 147.0, 298.0, 0, 0.0),
     ("france_italy_etopo2.tif", 780, 510, -5035.0, 4086.0, 0, 0.0),
     ("fuji_terrainrgb.png", 512, 512, 13.7, 3751.0, 0, 0.05),
     ("jacksboro_fault_u16.png", 403, 344, 236.0, 1076.0, 0, 0.0),
     ("kilauea_30m.bt", 857, 793, 0.0, 1505.0, 20656, 0.0),
-    (
-        "mount_st_helens_30m.tif",
-        327,
-        468,
-        682.0,
-        2543.0,
-        4151,
-        0.0,
-    ),
-    (
-        "salish_sea_topobathy_f32.tif",
-        120,
-        91,
-        -1437.0,
-        2205.0,
-        0,
-        0.5,
-    ),
-    (
-        "seamount_holes_f32.tif",
-        1000,
-        800,
-        -4719.0,
-        -4100.0,
-        410661,
-        0.5,
-    ),
-    (
-        "srtm3_kattegat/N57E011.hgt",
-        1201,
-        1201,
-        -6.0,
-        163.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_provence/N43E006.hgt",
-        1201,
-        1201,
-        -12.0,
-        1923.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_provence/N43E007.hgt",
-        1201,
-        1201,
-        -16.0,
-        2060.0,
-        4,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N36W117.hgt",
-        1201,
-        1201,
-        -85.0,
-        2165.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N36W118.hgt",
-        1201,
-        1201,
-        -80.0,
-        3372.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N36W119.hgt",
-        1201,
-        1201,
-        140.0,
-        4404.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N37W117.hgt",
-        1201,
-        1201,
-        1108.0,
-        2859.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N37W118.hgt",
-        1201,
-        1201,
-        605.0,
-        3175.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N37W119.hgt",
-        1201,
-        1201,
-        1165.0,
-        4333.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N38W117.hgt",
-        1201,
-        1201,
-        1477.0,
-        3635.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N38W118.hgt",
-        1201,
-        1201,
-        1372.0,
-        3573.0,
-        0,
-        0.0,
-    ),
-    (
-        "srtm3_sierra_3x3/N38W119.hgt",
-        1201,
-        1201,
-        1206.0,
-        3416.0,
-        0,
-        0.0,
-    ),
-    (
-        "west_bijou_gully_3m.asc",
-        43,
-        89,
-        1680.78,
-        1725.43,
-        2739,
-        0.005,
-    ),
+    ("mount_st_helens_30m.tif", 327, 468, 682.0, 2543.0, 4151, 0.0),
+    ("salish_sea_topobathy_f32.tif", 120, 91, -1437.0, 2205.0, 0, 0.5),
+    ("seamount_holes_f32.tif", 1000, 800, -4719.0, -4100.0, 410661, 0.5),
+    ("srtm3_kattegat/N57E011.hgt", 1201, 1201, -6.0, 163.0, 0, 0.0),
+    ("srtm3_provence/N43E006.hgt", 1201, 1201, -12.0, 1923.0, 0, 0.0),
+    ("srtm3_provence/N43E007.hgt", 1201, 1201, -16.0, 2060.0, 4, 0.0),
+    ("srtm3_sierra_3x3/N36W117.hgt", 1201, 1201, -85.0, 2165.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N36W118.hgt", 1201, 1201, -80.0, 3372.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N36W119.hgt", 1201, 1201, 140.0, 4404.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N37W117.hgt", 1201, 1201, 1108.0, 2859.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N37W118.hgt", 1201, 1201, 605.0, 3175.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N37W119.hgt", 1201, 1201, 1165.0, 4333.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N38W117.hgt", 1201, 1201, 1477.0, 3635.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N38W118.hgt", 1201, 1201, 1372.0, 3573.0, 0, 0.0),
+    ("srtm3_sierra_3x3/N38W119.hgt", 1201, 1201, 1206.0, 3416.0, 0, 0.0),
+    ("west_bijou_gully_3m.asc", 43, 89, 1680.78, 1725.43, 2739, 0.005),
 ];
 
 #[test]
@@ -1256,10 +914,7 @@ fn regenerate_fixtures() {
 
     // Crop `w × h` at (row r0, column c0), north-up.
     fn crop(hf: &Heightfield, r0: usize, c0: usize, w: usize, h: usize) -> Vec<f32> {
-        (r0..r0 + h)
-            .flat_map(|r| (c0..c0 + w).map(move |c| (r, c)))
-            .map(|(r, c)| hf.get(r, c))
-            .collect()
+        (r0..r0 + h).flat_map(|r| (c0..c0 + w).map(move |c| (r, c))).map(|(r, c)| hf.get(r, c)).collect()
     }
 
     // DEFLATE + horizontal predictor GeoTIFF: Death Valley from California.
@@ -1268,10 +923,7 @@ fn regenerate_fixtures() {
         use tiff::tags::Tag;
         let cal = ok(&dem.join("california_srtm3_8401x4801.tif"));
         let (r0, c0) = (4500, 5050);
-        let data: Vec<i16> = crop(&cal, r0, c0, 64, 48)
-            .iter()
-            .map(|&h| h as i16)
-            .collect();
+        let data: Vec<i16> = crop(&cal, r0, c0, 64, 48).iter().map(|&h| h as i16).collect();
         let step = 1.0 / 1200.0;
         // PixelIsArea: the tie point is the corner of sample (0, 0).
         let x = -121.0 + c0 as f64 * step - step / 2.0;
@@ -1284,10 +936,8 @@ fn regenerate_fixtures() {
         let mut img = enc.new_image::<colortype::GrayI16>(64, 48).unwrap();
         img.rows_per_strip(16).unwrap();
         let e = img.encoder();
-        e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..])
-            .unwrap();
-        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, x, y, 0.0][..])
-            .unwrap();
+        e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
+        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, x, y, 0.0][..]).unwrap();
         let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326];
         e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
         e.write_tag(Tag::GdalNodata, "-32768").unwrap();
@@ -1322,10 +972,8 @@ fn regenerate_fixtures() {
         let f64_at = |o: usize| f64::from_le_bytes(header[o..o + 8].try_into().unwrap());
         let (left, top) = (f64_at(28), f64_at(52));
         let (r0, c0) = (688, 256);
-        let data: Vec<f64> = crop(&src, r0, c0, 64, 48)
-            .iter()
-            .map(|&h| if h.is_nan() { -32768.0 } else { f64::from(h) })
-            .collect();
+        let data: Vec<f64> =
+            crop(&src, r0, c0, 64, 48).iter().map(|&h| if h.is_nan() { -32768.0 } else { f64::from(h) }).collect();
         let l = left + c0 as f64 * 30.0;
         let t = top - r0 as f64 * 30.0;
         let edges = [l, l + 64.0 * 30.0, t - 48.0 * 30.0, t];
@@ -1349,36 +997,22 @@ fn regenerate_fixtures() {
             }
         }
         let window = chosen.expect("a window at the hole's edge");
-        write_exr(
-            &out.join("seamount_crop_f32.exr"),
-            64,
-            48,
-            vec![("Y", exr::prelude::FlatSamples::F32(window))],
-        );
+        write_exr(&out.join("seamount_crop_f32.exr"), 64, 48, vec![("Y", exr::prelude::FlatSamples::F32(window))]);
     }
 
     // 8-bit grayscale PNG: Gothenburg archipelago, 0…117 m.
     {
         let src = ok(&dem.join("srtm3_kattegat/N57E011.hgt"));
-        let data: Vec<u8> = crop(&src, 96, 864, 64, 48)
-            .iter()
-            .map(|&h| h as u8)
-            .collect();
-        image::GrayImage::from_raw(64, 48, data)
-            .unwrap()
-            .save(out.join("kattegat_crop_u8.png"))
-            .unwrap();
+        let data: Vec<u8> = crop(&src, 96, 864, 64, 48).iter().map(|&h| h as u8).collect();
+        image::GrayImage::from_raw(64, 48, data).unwrap().save(out.join("kattegat_crop_u8.png")).unwrap();
     }
 
     // Terrain-RGB: the RGBA bytes around Fuji's summit, untouched.
     {
-        let rgba = image::open(dem.join("fuji_terrainrgb.png"))
-            .unwrap()
-            .to_rgba8();
+        let rgba = image::open(dem.join("fuji_terrainrgb.png")).unwrap().to_rgba8();
         let decoded = ok(&dem.join("fuji_terrainrgb.png"));
-        let top = (0..decoded.heights.len())
-            .max_by(|&a, &b| decoded.heights[a].total_cmp(&decoded.heights[b]))
-            .unwrap();
+        let top =
+            (0..decoded.heights.len()).max_by(|&a, &b| decoded.heights[a].total_cmp(&decoded.heights[b])).unwrap();
         let (r, c) = (top / 512, top % 512);
         let r0 = r.saturating_sub(24).min(512 - 48) as u32;
         let c0 = c.saturating_sub(32).min(512 - 64) as u32;
@@ -1398,11 +1032,6 @@ fn regenerate_fixtures() {
     ] {
         let hf = ok(&out.join(name));
         let zeros = hf.heights.iter().filter(|&&h| h == 0.0).count();
-        println!(
-            "{name}: {} × {} {:?} zeros {zeros}",
-            hf.width,
-            hf.height,
-            stats(&hf)
-        );
+        println!("{name}: {} × {} {:?} zeros {zeros}", hf.width, hf.height, stats(&hf));
     }
 }

@@ -232,12 +232,24 @@ fn tileset_matches_contract(out: &Path, name: &str) {
     assert_eq!(ts["asset"]["version"], "1.1", "{name}");
     let schemas: Vec<(String, Value)> = extras_schemas()
         .into_iter()
-        .map(|(f, _)| (f.to_string(), serde_json::from_str(&std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas").join(f)).unwrap()).unwrap()))
+        .map(|(f, _)| {
+            (
+                f.to_string(),
+                serde_json::from_str(
+                    &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas").join(f)).unwrap(),
+                )
+                .unwrap(),
+            )
+        })
         .collect();
     let tileset_schema = jsonschema::validator_for(&schemas[0].1).unwrap();
     let tile_schema = jsonschema::validator_for(&schemas[1].1).unwrap();
     let ex = &ts["extras"]["terrachunk"];
-    assert!(tileset_schema.is_valid(ex), "{name}: tileset extras: {:?}", tileset_schema.iter_errors(ex).map(|e| e.to_string()).collect::<Vec<_>>());
+    assert!(
+        tileset_schema.is_valid(ex),
+        "{name}: tileset extras: {:?}",
+        tileset_schema.iter_errors(ex).map(|e| e.to_string()).collect::<Vec<_>>()
+    );
     for key in ["grid", "spacing_m", "max_error_m", "tau_max_px", "levels", "source", "morph"] {
         assert!(!ex[key].is_null(), "{name}: extras.terrachunk.{key} missing");
     }
@@ -283,7 +295,8 @@ fn each_glb_carries_the_morph_target_contract() {
         let mesh = &j["meshes"][0];
         assert_eq!(mesh["weights"], serde_json::json!([0.0]), "{}", path.display());
         assert_eq!(mesh["extras"]["targetNames"], serde_json::json!(["parent"]));
-        let roles: Vec<&str> = mesh["primitives"].as_array().unwrap().iter().map(|p| p["extras"]["role"].as_str().unwrap()).collect();
+        let roles: Vec<&str> =
+            mesh["primitives"].as_array().unwrap().iter().map(|p| p["extras"]["role"].as_str().unwrap()).collect();
         assert_eq!(roles[0], "surface");
         assert!(roles.iter().all(|r| ["surface", "skirt"].contains(r)));
         for p in mesh["primitives"].as_array().unwrap() {
@@ -303,7 +316,8 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
     let (_t, out, _) = build_ok(&fixture("dfw_texas_srtm3.tif"), 1.0);
     verified(&out);
     // Lift every vertex of one leaf by 3 m: its error bound and its borders break.
-    let victim = all_files(&out).into_iter().map(|(p, _)| p).filter(|p| p.extension().is_some_and(|e| e == "glb")).last().unwrap();
+    let victim =
+        all_files(&out).into_iter().map(|(p, _)| p).rfind(|p| p.extension().is_some_and(|e| e == "glb")).unwrap();
     let path = out.join(&victim);
     let bytes = std::fs::read(&path).unwrap();
     let glb = gltf::Glb::from_slice(&bytes).unwrap();
@@ -311,7 +325,7 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
     let y = j["nodes"][0]["translation"][1].as_f64().unwrap();
     j["nodes"][0]["translation"][1] = serde_json::json!(y + 3.0);
     let mut json = serde_json::to_vec(&j).unwrap();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let bin = glb.bin.unwrap().into_owned();
@@ -348,7 +362,11 @@ fn assert_bad_input(args: &[&str], out: &Path, says: &str) {
     assert!(err.contains(says), "{args:?}: expected {says:?} in {err}");
     assert!(!out.exists(), "{args:?} left {}", out.display());
     let parent = out.parent().unwrap();
-    let leftovers: Vec<_> = std::fs::read_dir(parent).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().contains("terrachunk-tmp")).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(parent)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains("terrachunk-tmp"))
+        .collect();
     assert!(leftovers.is_empty(), "temporary directory left behind");
 }
 
@@ -398,7 +416,16 @@ fn summary_report_and_inspect_tell_the_user_what_was_built() {
     let out = tmp.path().join("out");
     let report = tmp.path().join("report.json");
     let g = fixture("mount_st_helens_30m.tif");
-    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap(), "--report", report.to_str().unwrap(), "--threads", "2"]);
+    let o = cli(&[
+        "build",
+        g.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--threads",
+        "2",
+    ]);
     assert!(o.status.success());
     let text = String::from_utf8_lossy(&o.stdout);
     for word in ["level", "triangles", "bytes per input sample", "peak memory", "time:"] {
@@ -410,7 +437,18 @@ fn summary_report_and_inspect_tell_the_user_what_was_built() {
     let o = cli(&["inspect", out.join("tiles/0/0/0.glb").to_str().unwrap()]);
     assert!(o.status.success());
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(text.contains("chunk      0/0/0") && text.contains("triangles") && text.contains("morph dy   0.0000..0.0000"), "{text}");
+    assert!(
+        text.contains("chunk      0/0/0") && text.contains("triangles") && text.contains("morph dy   0.0000..0.0000"),
+        "{text}"
+    );
     let o = cli(&["verify", out.to_str().unwrap()]);
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("OK"));
+}
+
+#[test]
+fn pipeline_toml_documents_exactly_the_defaults() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline.toml");
+    let cfg = Config::from_file(&path).unwrap();
+    assert_eq!(cfg, Config::default());
+    cfg.validate().unwrap();
 }

@@ -29,8 +29,7 @@ struct Header {
 /// Read an ESRI ASCII grid.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
-    let text =
-        std::str::from_utf8(&bytes).map_err(|e| corrupt(path, format!("not a text file: {e}")))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| corrupt(path, format!("not a text file: {e}")))?;
 
     let mut header = Header::default();
     let mut lines = text.lines().enumerate().peekable();
@@ -45,27 +44,18 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         }
         lines.next();
         let line_no = i + 1;
-        let value = tokens.next().ok_or_else(|| {
-            corrupt(
-                path,
-                format!("line {line_no}: header keyword {key:?} has no value"),
-            )
-        })?;
+        let value = tokens
+            .next()
+            .ok_or_else(|| corrupt(path, format!("line {line_no}: header keyword {key:?} has no value")))?;
         let num = || {
-            value.parse::<f64>().map_err(|_| {
-                corrupt(
-                    path,
-                    format!("line {line_no}: {key} value {value:?} is not a number"),
-                )
-            })
+            value
+                .parse::<f64>()
+                .map_err(|_| corrupt(path, format!("line {line_no}: {key} value {value:?} is not a number")))
         };
         let count = || {
-            value.parse::<usize>().map_err(|_| {
-                corrupt(
-                    path,
-                    format!("line {line_no}: {key} value {value:?} is not a whole number"),
-                )
-            })
+            value
+                .parse::<usize>()
+                .map_err(|_| corrupt(path, format!("line {line_no}: {key} value {value:?} is not a whole number")))
         };
         match key.to_ascii_lowercase().as_str() {
             "ncols" => header.ncols = Some(count()?),
@@ -78,18 +68,14 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
             "dx" => header.dx = Some(num()?),
             "dy" => header.dy = Some(num()?),
             "nodata_value" | "nodata" => {
-                header.nodata = Some(value.parse::<f32>().map_err(|_| {
-                    corrupt(
-                        path,
-                        format!("line {line_no}: {key} value {value:?} is not a number"),
-                    )
-                })?)
+                header.nodata = Some(
+                    value
+                        .parse::<f32>()
+                        .map_err(|_| corrupt(path, format!("line {line_no}: {key} value {value:?} is not a number")))?,
+                )
             }
             _ => {
-                return Err(corrupt(
-                    path,
-                    format!("line {line_no}: unknown header keyword {key:?}"),
-                ));
+                return Err(corrupt(path, format!("line {line_no}: unknown header keyword {key:?}")));
             }
         }
     }
@@ -110,25 +96,18 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let mut found = 0usize;
     for (i, line) in lines {
         for token in line.split_ascii_whitespace() {
-            let v: f32 = token
-                .parse()
-                .map_err(|_| corrupt(path, format!("line {}: {token:?} is not a number", i + 1)))?;
+            let v: f32 =
+                token.parse().map_err(|_| corrupt(path, format!("line {}: {token:?} is not a number", i + 1)))?;
             found += 1;
             if found <= expected {
-                heights.push(if Some(v) == header.nodata {
-                    f32::NAN
-                } else {
-                    v
-                });
+                heights.push(if Some(v) == header.nodata { f32::NAN } else { v });
             }
         }
     }
     if found != expected {
         return Err(corrupt(
             path,
-            format!(
-                "found {found} values, expected ncols × nrows = {ncols} × {nrows} = {expected}"
-            ),
+            format!("found {found} values, expected ncols × nrows = {ncols} × {nrows} = {expected}"),
         ));
     }
 
@@ -146,11 +125,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         heights,
         spacing_m: [dx, dy],
         georef: Georef {
-            crs: if geographic {
-                Crs::Geographic { epsg: None }
-            } else {
-                Crs::Projected { epsg: None }
-            },
+            crs: if geographic { Crs::Geographic { epsg: None } } else { Crs::Projected { epsg: None } },
             origin: [x0, y0],
             step: [dx, -dy],
             local_tangent: None,
@@ -174,8 +149,7 @@ fn prj_is_geographic(path: &Path) -> bool {
         Ok(wkt) => {
             let upper = wkt.to_ascii_uppercase();
             let upper = upper.trim_start();
-            (upper.starts_with("GEOGCS") || upper.starts_with("GEOGCRS"))
-                && !upper.contains("PROJCS")
+            (upper.starts_with("GEOGCS") || upper.starts_with("GEOGCRS")) && !upper.contains("PROJCS")
         }
         Err(_) => false,
     }

@@ -31,13 +31,7 @@ enum Sample {
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
     if bytes.len() < HEADER {
-        return Err(corrupt(
-            path,
-            format!(
-                "the file is {} bytes, shorter than the 256-byte BT header",
-                bytes.len()
-            ),
-        ));
+        return Err(corrupt(path, format!("the file is {} bytes, shorter than the 256-byte BT header", bytes.len())));
     }
     let h = &bytes[..HEADER];
     let version = &h[..10];
@@ -48,10 +42,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         _ => {
             return Err(unsupported(
                 path,
-                format!(
-                    "BT header {:?}; terrachunk reads versions 1.1 to 1.3",
-                    String::from_utf8_lossy(version)
-                ),
+                format!("BT header {:?}; terrachunk reads versions 1.1 to 1.3", String::from_utf8_lossy(version)),
             ));
         }
     };
@@ -66,10 +57,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let cols = i32_at(10);
     let rows = i32_at(14);
     if cols <= 0 || rows <= 0 {
-        return Err(corrupt(
-            path,
-            format!("the header says {cols} columns × {rows} rows"),
-        ));
+        return Err(corrupt(path, format!("the header says {cols} columns × {rows} rows")));
     }
     let (width, height) = (cols as usize, rows as usize);
     let n = sample_count(path, width, height)?;
@@ -95,10 +83,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         2 => 0.3048,
         3 => 1200.0 / 3937.0,
         _ => {
-            return Err(corrupt(
-                path,
-                format!("horizontal units code {units} (0–3 are defined)"),
-            ));
+            return Err(corrupt(path, format!("horizontal units code {units} (0–3 are defined)")));
         }
     };
     let zone = i16_at(24);
@@ -119,10 +104,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let expected = n * size;
     let data = &bytes[HEADER..];
     if data.len() < expected {
-        return Err(corrupt(
-            path,
-            format!("expected {expected} bytes of samples, found {}", data.len()),
-        ));
+        return Err(corrupt(path, format!("expected {expected} bytes of samples, found {}", data.len())));
     }
 
     // Column-major from the south-west corner → row-major from the north-west.
@@ -133,27 +115,15 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         let v = match sample {
             Sample::I16 => {
                 let v = i16::from_le_bytes([b[0], b[1]]);
-                if i32::from(v) == NODATA {
-                    f32::NAN
-                } else {
-                    f32::from(v) * vertical
-                }
+                if i32::from(v) == NODATA { f32::NAN } else { f32::from(v) * vertical }
             }
             Sample::I32 => {
                 let v = i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                if v == NODATA {
-                    f32::NAN
-                } else {
-                    (f64::from(v) * f64::from(vertical)) as f32
-                }
+                if v == NODATA { f32::NAN } else { (f64::from(v) * f64::from(vertical)) as f32 }
             }
             Sample::F32 => {
                 let v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                if v == NODATA as f32 {
-                    f32::NAN
-                } else {
-                    v * vertical
-                }
+                if v == NODATA as f32 { f32::NAN } else { v * vertical }
             }
         };
         heights[row * width + col] = v;
@@ -168,25 +138,16 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         height,
         heights,
         spacing_m: [dx * unit_m, dy * unit_m],
-        georef: Georef {
-            crs: Crs::Unknown,
-            origin,
-            step: [dx, -dy],
-            local_tangent: None,
-        },
+        georef: Georef { crs: Crs::Unknown, origin, step: [dx, -dy], local_tangent: None },
         source: file_name(path),
     };
     if units == 0 {
-        hf.georef.crs = Crs::Geographic {
-            epsg: geographic_epsg(datum),
-        };
+        hf.georef.crs = Crs::Geographic { epsg: geographic_epsg(datum) };
         if dx.is_finite() && dy.is_finite() && dx > 0.0 && dy > 0.0 {
             hf.apply_local_tangent();
         }
     } else {
-        hf.georef.crs = Crs::Projected {
-            epsg: utm_epsg(datum, zone),
-        };
+        hf.georef.crs = Crs::Projected { epsg: utm_epsg(datum, zone) };
     }
     Ok(hf)
 }

@@ -16,9 +16,7 @@ const PREFERRED: [&str; 4] = ["Y", "Z", "R", "height"];
 
 /// Read an EXR heightmap.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    let file_len = std::fs::metadata(path)
-        .map_err(|e| io_error(path, e))?
-        .len();
+    let file_len = std::fs::metadata(path).map_err(|e| io_error(path, e))?.len();
     // Check the sizes the headers promise before the decoder allocates for
     // them: no EXR compression shrinks data by more than a few thousand to
     // one, so a header promising more is corrupt.
@@ -30,9 +28,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         if raw > file_len.saturating_mul(8192).saturating_add(1 << 20) {
             return Err(corrupt(
                 path,
-                format!(
-                    "the header promises {w} × {h} pixels but the file is only {file_len} bytes"
-                ),
+                format!("the header promises {w} × {h} pixels but the file is only {file_len} bytes"),
             ));
         }
     }
@@ -49,10 +45,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
 
     let layers = image.layer_data;
     if layers.len() != 1 {
-        return Err(unsupported(
-            path,
-            format!("{} layers; a DEM needs one", layers.len()),
-        ));
+        return Err(unsupported(path, format!("{} layers; a DEM needs one", layers.len())));
     }
     let layer = &layers[0];
     let (w, h) = (layer.size.0, layer.size.1);
@@ -82,10 +75,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
             })?,
     };
     if channel.sampling.0 != 1 || channel.sampling.1 != 1 {
-        return Err(unsupported(
-            path,
-            format!("channel {} is subsampled", channel.name),
-        ));
+        return Err(unsupported(path, format!("channel {} is subsampled", channel.name)));
     }
     let heights: Vec<f32> = match &channel.sample_data {
         FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
@@ -93,33 +83,19 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         FlatSamples::U32(_) => {
             return Err(unsupported(
                 path,
-                format!(
-                    "channel {} holds 32-bit unsigned integers; heights need float16 or float32",
-                    channel.name
-                ),
+                format!("channel {} holds 32-bit unsigned integers; heights need float16 or float32", channel.name),
             ));
         }
     };
     if heights.len() != n {
-        return Err(corrupt(
-            path,
-            format!(
-                "expected {n} samples for {w} × {h}, found {}",
-                heights.len()
-            ),
-        ));
+        return Err(corrupt(path, format!("expected {n} samples for {w} × {h}, found {}", heights.len())));
     }
     Ok(Heightfield {
         width: w,
         height: h,
         heights,
         spacing_m: [1.0, 1.0],
-        georef: Georef {
-            crs: Crs::Unknown,
-            origin: [0.0, 0.0],
-            step: [1.0, -1.0],
-            local_tangent: None,
-        },
+        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
         source: file_name(path),
     })
 }
@@ -128,10 +104,9 @@ fn exr_error(path: &Path, e: ::exr::error::Error) -> DemError {
     use ::exr::error::Error;
     match e {
         Error::NotSupported(what) => unsupported(path, format!("OpenEXR: {what}")),
-        Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => corrupt(
-            path,
-            format!("the OpenEXR file ends early (truncated?): {io}"),
-        ),
+        Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            corrupt(path, format!("the OpenEXR file ends early (truncated?): {io}"))
+        }
         Error::Io(io) => io_error(path, io),
         Error::Invalid(what) => corrupt(path, format!("OpenEXR: {what}")),
         Error::Aborted => corrupt(path, "OpenEXR: reading was aborted"),

@@ -41,9 +41,8 @@ const WEB_MERCATOR: [u32; 5] = [3857, 3785, 900_913, 102_100, 102_113];
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let file = File::open(path).map_err(|e| io_error(path, e))?;
     let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
-    let mut dec = Decoder::new(BufReader::new(file))
-        .map_err(|e| tiff_error(path, e))?
-        .with_limits(tag_limits(file_len));
+    let mut dec =
+        Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
     let err = |e: TiffError| tiff_error(path, e);
 
     let (w, h) = dec.dimensions().map_err(err)?;
@@ -55,10 +54,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let nodata = match dec.find_tag(Tag::GdalNodata).map_err(err)? {
         Some(tiff::decoder::ifd::Value::Ascii(s)) => parse_nodata(path, &s)?,
         Some(other) => {
-            return Err(corrupt(
-                path,
-                format!("GDAL_NODATA tag is {other:?}, not text"),
-            ));
+            return Err(corrupt(path, format!("GDAL_NODATA tag is {other:?}, not text")));
         }
         None => None,
     };
@@ -70,10 +66,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         return Err(corrupt(path, format!("chunks of {cw} × {ch} samples")));
     }
     // While decoding, the buffer limit is one chunk of at most 8-byte samples.
-    let chunk_bytes = cw
-        .min(width)
-        .saturating_mul(ch.min(height))
-        .saturating_mul(8);
+    let chunk_bytes = cw.min(width).saturating_mul(ch.min(height)).saturating_mul(8);
     let mut limits = tag_limits(file_len);
     limits.decoding_buffer_size = chunk_bytes.saturating_add(1 << 16);
     dec = dec.with_limits(limits);
@@ -107,12 +100,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         height,
         heights,
         spacing_m: [1.0, 1.0],
-        georef: Georef {
-            crs: Crs::Unknown,
-            origin: [0.0, 0.0],
-            step: [1.0, -1.0],
-            local_tangent: None,
-        },
+        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
         source: file_name(path),
     };
     dec = dec.with_limits(tag_limits(file_len));
@@ -125,11 +113,8 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
 /// crate bounds tag arrays by `decoding_buffer_size`.)
 fn tag_limits(file_len: u64) -> Limits {
     let mut limits = Limits::default();
-    let values = usize::try_from(file_len)
-        .unwrap_or(usize::MAX)
-        .saturating_add(4096);
-    limits.decoding_buffer_size =
-        values.saturating_mul(std::mem::size_of::<tiff::decoder::ifd::Value>());
+    let values = usize::try_from(file_len).unwrap_or(usize::MAX).saturating_add(4096);
+    limits.decoding_buffer_size = values.saturating_mul(std::mem::size_of::<tiff::decoder::ifd::Value>());
     limits.intermediate_buffer_size = usize::try_from(file_len).unwrap_or(usize::MAX);
     limits
 }
@@ -138,28 +123,16 @@ fn tag_limits(file_len: u64) -> Limits {
 /// band of numbers.
 fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), DemError> {
     let err = |e: TiffError| tiff_error(path, e);
-    let samples: u16 = dec
-        .find_tag_unsigned(Tag::SamplesPerPixel)
-        .map_err(err)?
-        .unwrap_or(1);
-    let photometric: u16 = dec
-        .find_tag_unsigned(Tag::PhotometricInterpretation)
-        .map_err(err)?
-        .unwrap_or(1);
+    let samples: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(err)?.unwrap_or(1);
+    let photometric: u16 = dec.find_tag_unsigned(Tag::PhotometricInterpretation).map_err(err)?.unwrap_or(1);
     let bits: u16 = dec
         .find_tag_unsigned_vec::<u16>(Tag::BitsPerSample)
         .map_err(err)?
         .and_then(|v| v.first().copied())
         .unwrap_or(1);
-    let format: u16 = dec
-        .find_tag_unsigned_vec::<u16>(Tag::SampleFormat)
-        .map_err(err)?
-        .and_then(|v| v.first().copied())
-        .unwrap_or(1);
-    let compression: u16 = dec
-        .find_tag_unsigned(Tag::Compression)
-        .map_err(err)?
-        .unwrap_or(1);
+    let format: u16 =
+        dec.find_tag_unsigned_vec::<u16>(Tag::SampleFormat).map_err(err)?.and_then(|v| v.first().copied()).unwrap_or(1);
+    let compression: u16 = dec.find_tag_unsigned(Tag::Compression).map_err(err)?.unwrap_or(1);
 
     if samples != 1 {
         let kind = match (photometric, samples) {
@@ -169,10 +142,7 @@ fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), D
             (6, _) => "YCbCr".to_string(),
             _ => format!("{samples} bands"),
         };
-        return Err(unsupported(
-            path,
-            format!("{samples} samples per pixel ({kind}); a DEM needs one band"),
-        ));
+        return Err(unsupported(path, format!("{samples} samples per pixel ({kind}); a DEM needs one band")));
     }
     if photometric == 3 {
         return Err(unsupported(
@@ -196,10 +166,7 @@ fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), D
         _ => matches!(bits, 8 | 16 | 32 | 64),
     };
     if !ok_bits {
-        return Err(unsupported(
-            path,
-            format!("{bits}-bit {kind} samples; terrachunk reads 8, 16, 32 and 64 bits"),
-        ));
+        return Err(unsupported(path, format!("{bits}-bit {kind} samples; terrachunk reads 8, 16, 32 and 64 bits")));
     }
     let compression_name = match compression {
         1 => None,
@@ -242,11 +209,7 @@ fn check_chunks_present(
     let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(err)?;
     let counts = dec.get_tag_u64_vec(counts_tag).map_err(err)?;
     let (cw, ch) = dec.chunk_dimensions();
-    let needed = if cw == 0 || ch == 0 {
-        0
-    } else {
-        width.div_ceil(cw as usize) * height.div_ceil(ch as usize)
-    };
+    let needed = if cw == 0 || ch == 0 { 0 } else { width.div_ceil(cw as usize) * height.div_ceil(ch as usize) };
     if offsets.len() < needed || counts.len() < offsets.len() {
         return Err(corrupt(
             path,
@@ -281,9 +244,7 @@ fn check_chunks_present(
         .map_err(err)?
         .and_then(|v| v.first().copied())
         .map_or(8, u64::from);
-    let raw = (width as u64)
-        .saturating_mul(height as u64)
-        .saturating_mul(bits / 8);
+    let raw = (width as u64).saturating_mul(height as u64).saturating_mul(bits / 8);
     if raw > expected.saturating_mul(4096).saturating_add(1 << 20) {
         return Err(corrupt(
             path,
@@ -306,10 +267,7 @@ fn parse_nodata(path: &Path, text: &str) -> Result<Option<f64>, DemError> {
     match t.parse::<f64>() {
         Ok(v) if v.is_nan() => Ok(None),
         Ok(v) => Ok(Some(v)),
-        Err(_) => Err(corrupt(
-            path,
-            format!("GDAL_NODATA tag {t:?} is not a number"),
-        )),
+        Err(_) => Err(corrupt(path, format!("GDAL_NODATA tag {t:?} is not a number"))),
     }
 }
 
@@ -356,16 +314,10 @@ fn place(
     macro_rules! int {
         ($src:expr, $t:ty) => {{
             let nd: Option<$t> = nodata.and_then(|v| {
-                if v.fract() == 0.0 && v >= <$t>::MIN as f64 && v <= <$t>::MAX as f64 {
-                    Some(v as $t)
-                } else {
-                    None
-                }
+                if v.fract() == 0.0 && v >= <$t>::MIN as f64 && v <= <$t>::MAX as f64 { Some(v as $t) } else { None }
             });
             match nd {
-                Some(nd) => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| {
-                    if v == nd { f32::NAN } else { v as f32 }
-                }),
+                Some(nd) => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| if v == nd { f32::NAN } else { v as f32 }),
                 None => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| v as f32),
             }
         }};
@@ -385,56 +337,32 @@ fn place(
         DecodingResult::F32(s) => copy(dst, width, x0, y0, dw, dh, &s, float),
         DecodingResult::F64(s) => {
             let nd = nodata;
-            copy(dst, width, x0, y0, dw, dh, &s, |v: f64| {
-                if Some(v) == nd { f32::NAN } else { v as f32 }
-            })
+            copy(dst, width, x0, y0, dw, dh, &s, |v: f64| if Some(v) == nd { f32::NAN } else { v as f32 })
         }
     };
     if ok {
         Ok(())
     } else {
-        Err(corrupt(
-            path,
-            format!("a chunk at sample ({x0}, {y0}) decoded to fewer samples than its size"),
-        ))
+        Err(corrupt(path, format!("a chunk at sample ({x0}, {y0}) decoded to fewer samples than its size")))
     }
 }
 
 /// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
-fn georeference(
-    path: &Path,
-    dec: &mut Decoder<BufReader<File>>,
-    hf: &mut Heightfield,
-) -> Result<(), DemError> {
+fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Heightfield) -> Result<(), DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let keys = match dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(err)? {
         Some(v) => geokeys(&v.into_u16_vec().map_err(err)?),
         None => return Ok(()),
     };
-    let scale = dec
-        .find_tag(Tag::ModelPixelScaleTag)
-        .map_err(err)?
-        .map(|v| v.into_f64_vec())
-        .transpose()
-        .map_err(err)?;
-    let tie = dec
-        .find_tag(Tag::ModelTiepointTag)
-        .map_err(err)?
-        .map(|v| v.into_f64_vec())
-        .transpose()
-        .map_err(err)?;
-    let transform = dec
-        .find_tag(Tag::ModelTransformationTag)
-        .map_err(err)?
-        .map(|v| v.into_f64_vec())
-        .transpose()
-        .map_err(err)?;
+    let scale =
+        dec.find_tag(Tag::ModelPixelScaleTag).map_err(err)?.map(|v| v.into_f64_vec()).transpose().map_err(err)?;
+    let tie = dec.find_tag(Tag::ModelTiepointTag).map_err(err)?.map(|v| v.into_f64_vec()).transpose().map_err(err)?;
+    let transform =
+        dec.find_tag(Tag::ModelTransformationTag).map_err(err)?.map(|v| v.into_f64_vec()).transpose().map_err(err)?;
 
     // Raster (I, J) → model (X, Y) as X = tx + (I − ti)·sx, Y = ty − (J − tj)·sy.
     let (sx, sy, ti, tj, tx, ty) = match (scale, tie, transform) {
-        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
-            (s[0], s[1], t[0], t[1], t[3], t[4])
-        }
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => (s[0], s[1], t[0], t[1], t[3], t[4]),
         (_, _, Some(m)) if m.len() >= 16 => {
             // Rotation terms are ignored: the grid stays a grid; the spacing
             // is the length of each raster axis in model units.
@@ -460,12 +388,7 @@ fn georeference(
         step[0] = -step[0];
     }
 
-    let epsg = |key: u16| {
-        keys.get(&key)
-            .copied()
-            .filter(|&c| c != 0 && c != 32767)
-            .map(u32::from)
-    };
+    let epsg = |key: u16| keys.get(&key).copied().filter(|&c| c != 0 && c != 32767).map(u32::from);
     let model = keys.get(&GT_MODEL_TYPE).copied().unwrap_or_else(|| {
         if keys.contains_key(&PROJECTED_CS_TYPE) {
             1
@@ -479,9 +402,7 @@ fn georeference(
     hf.georef.step = step;
     match model {
         2 => {
-            hf.georef.crs = Crs::Geographic {
-                epsg: epsg(GEOGRAPHIC_TYPE),
-            };
+            hf.georef.crs = Crs::Geographic { epsg: epsg(GEOGRAPHIC_TYPE) };
             hf.apply_local_tangent();
         }
         1 => {

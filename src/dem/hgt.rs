@@ -42,13 +42,7 @@ pub(super) fn load_single(path: &Path, spacing_given: bool) -> Result<Heightfiel
     let n = side(path)?;
     match parse_name(path) {
         Some((lat, lon)) => {
-            let tile = Tile {
-                path: path.to_path_buf(),
-                name: file_name(path),
-                lat,
-                lon,
-                n,
-            };
+            let tile = Tile { path: path.to_path_buf(), name: file_name(path), lat, lon, n };
             mosaic(vec![tile], file_name(path))
         }
         None if spacing_given => {
@@ -60,12 +54,7 @@ pub(super) fn load_single(path: &Path, spacing_given: bool) -> Result<Heightfiel
                 height: n,
                 heights,
                 spacing_m: [1.0, 1.0],
-                georef: Georef {
-                    crs: Crs::Unknown,
-                    origin: [0.0, 0.0],
-                    step: [1.0, -1.0],
-                    local_tangent: None,
-                },
+                georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
                 source: file_name(path),
             })
         }
@@ -114,9 +103,7 @@ pub(super) fn load_mosaic(paths: &[PathBuf]) -> Result<Heightfield, DemError> {
 }
 
 fn is_hgt(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("hgt"))
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("hgt"))
 }
 
 fn tiles(paths: &[PathBuf]) -> Result<Vec<Tile>, DemError> {
@@ -131,28 +118,16 @@ fn tiles(paths: &[PathBuf]) -> Result<Vec<Tile>, DemError> {
                      (expected the south-west corner, like N43E006.hgt)",
                 )
             })?;
-            Ok(Tile {
-                path: p.clone(),
-                name: file_name(p),
-                lat,
-                lon,
-                n,
-            })
+            Ok(Tile { path: p.clone(), name: file_name(p), lat, lon, n })
         })
         .collect()
 }
 
 /// Samples per side, from the file length: `len = 2·n²`.
 fn side(path: &Path) -> Result<usize, DemError> {
-    let len = std::fs::metadata(path)
-        .map_err(|e| io_error(path, e))?
-        .len();
-    let not_square = || {
-        corrupt(
-            path,
-            format!("{len} bytes is not a square grid of int16 (an SRTM tile is 2·n² bytes)"),
-        )
-    };
+    let len = std::fs::metadata(path).map_err(|e| io_error(path, e))?.len();
+    let not_square =
+        || corrupt(path, format!("{len} bytes is not a square grid of int16 (an SRTM tile is 2·n² bytes)"));
     if len % 2 != 0 {
         return Err(not_square());
     }
@@ -169,9 +144,7 @@ fn parse_name(path: &Path) -> Option<(i32, i32)> {
     let stem = path.file_name()?.to_str()?.as_bytes();
     let b = stem.get(..7)?;
     let digits = |s: &[u8]| -> Option<i32> {
-        s.iter().try_fold(0i32, |acc, &c| {
-            c.is_ascii_digit().then(|| acc * 10 + i32::from(c - b'0'))
-        })
+        s.iter().try_fold(0i32, |acc, &c| c.is_ascii_digit().then(|| acc * 10 + i32::from(c - b'0')))
     };
     let lat = digits(&b[1..3])?;
     let lon = digits(&b[4..7])?;
@@ -240,12 +213,7 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
             .filter(|k| !seen.contains_key(k))
             .map(|(lat, lon)| tile_name(lat, lon))
             .collect();
-        let shown = missing
-            .iter()
-            .take(6)
-            .cloned()
-            .collect::<Vec<_>>()
-            .join(", ");
+        let shown = missing.iter().take(6).cloned().collect::<Vec<_>>().join(", ");
         let more = if missing.len() > 6 { ", …" } else { "" };
         return Err(invalid(
             &label,
@@ -257,20 +225,9 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
         ));
     }
 
-    let too_big = || {
-        invalid(
-            &label,
-            format!("mosaic of {rows} × {cols} tiles of {n} samples is too large"),
-        )
-    };
-    let width = cols
-        .checked_mul(n - 1)
-        .and_then(|v| v.checked_add(1))
-        .ok_or_else(too_big)?;
-    let height = rows
-        .checked_mul(n - 1)
-        .and_then(|v| v.checked_add(1))
-        .ok_or_else(too_big)?;
+    let too_big = || invalid(&label, format!("mosaic of {rows} × {cols} tiles of {n} samples is too large"));
+    let width = cols.checked_mul(n - 1).and_then(|v| v.checked_add(1)).ok_or_else(too_big)?;
+    let height = rows.checked_mul(n - 1).and_then(|v| v.checked_add(1)).ok_or_else(too_big)?;
     let total = sample_count(&label, width, height)?;
     let mut heights = vec![f32::NAN; total];
 
@@ -304,23 +261,13 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
 
 /// Read one tile and write its non-void samples into the grid at
 /// (`row0`, `col0`).
-fn fill(
-    path: &Path,
-    n: usize,
-    dst: &mut [f32],
-    width: usize,
-    row0: usize,
-    col0: usize,
-) -> Result<(), DemError> {
+fn fill(path: &Path, n: usize, dst: &mut [f32], width: usize, row0: usize, col0: usize) -> Result<(), DemError> {
     let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
     let expected = n * n * 2;
     if bytes.len() != expected {
         return Err(corrupt(
             path,
-            format!(
-                "expected {expected} bytes of samples, found {} (the file changed while reading)",
-                bytes.len()
-            ),
+            format!("expected {expected} bytes of samples, found {} (the file changed while reading)", bytes.len()),
         ));
     }
     for (r, row) in bytes.chunks_exact(2 * n).enumerate() {

@@ -101,31 +101,19 @@ impl DemError {
 pub(crate) const MAX_SAMPLES: usize = 1 << 31;
 
 pub(crate) fn io_error(path: &Path, source: std::io::Error) -> DemError {
-    DemError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
+    DemError::Io { path: path.to_path_buf(), source }
 }
 
 pub(crate) fn unsupported(path: &Path, what: impl Into<String>) -> DemError {
-    DemError::Unsupported {
-        path: path.to_path_buf(),
-        what: what.into(),
-    }
+    DemError::Unsupported { path: path.to_path_buf(), what: what.into() }
 }
 
 pub(crate) fn corrupt(path: &Path, what: impl Into<String>) -> DemError {
-    DemError::Corrupt {
-        path: path.to_path_buf(),
-        what: what.into(),
-    }
+    DemError::Corrupt { path: path.to_path_buf(), what: what.into() }
 }
 
 pub(crate) fn invalid(path: &Path, what: impl Into<String>) -> DemError {
-    DemError::Invalid {
-        path: path.to_path_buf(),
-        what: what.into(),
-    }
+    DemError::Invalid { path: path.to_path_buf(), what: what.into() }
 }
 
 /// `width × height`, refused when it overflows or exceeds [`MAX_SAMPLES`].
@@ -144,9 +132,7 @@ pub(crate) fn sample_count(path: &Path, width: usize, height: usize) -> Result<u
 
 /// The file name alone, for `Heightfield::source`.
 pub(crate) fn file_name(path: &Path) -> String {
-    path.file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| path.display().to_string())
+    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| path.display().to_string())
 }
 
 /// Load one DEM, or several `.hgt` tiles (or a folder of them) as a mosaic.
@@ -177,18 +163,12 @@ fn check_options(path: &Path, opts: &LoadOptions) -> Result<(), DemError> {
     if let Some(s) = opts.vertical_scale
         && !(s.is_finite() && s != 0.0)
     {
-        return Err(invalid(
-            path,
-            format!("vertical scale override {s} must be finite and non-zero"),
-        ));
+        return Err(invalid(path, format!("vertical scale override {s} must be finite and non-zero")));
     }
     if let Some([sx, sz]) = opts.spacing_m
         && !(sx.is_finite() && sz.is_finite() && sx > 0.0 && sz > 0.0)
     {
-        return Err(invalid(
-            path,
-            format!("spacing override {sx} × {sz} m: both must be finite and greater than 0"),
-        ));
+        return Err(invalid(path, format!("spacing override {sx} × {sz} m: both must be finite and greater than 0")));
     }
     Ok(())
 }
@@ -248,22 +228,13 @@ fn by_extension(path: &Path) -> Option<Format> {
 /// still loads) and by its extension for formats without one (`.hgt`).
 fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
     let mut head = Vec::with_capacity(64);
-    std::fs::File::open(path)
-        .and_then(|f| f.take(64).read_to_end(&mut head))
-        .map_err(|e| io_error(path, e))?;
+    std::fs::File::open(path).and_then(|f| f.take(64).read_to_end(&mut head)).map_err(|e| io_error(path, e))?;
     let format = match sniff(&head).or_else(|| by_extension(path)) {
         Some(f) => f,
         None => {
-            let shown: String = head
-                .iter()
-                .take(8)
-                .map(|b| format!("{b:02x}"))
-                .collect::<Vec<_>>()
-                .join(" ");
-            let ext = path
-                .extension()
-                .map(|e| format!(".{}", e.to_string_lossy()))
-                .unwrap_or_else(|| "no extension".into());
+            let shown: String = head.iter().take(8).map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
+            let ext =
+                path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_else(|| "no extension".into());
             return Err(unsupported(
                 path,
                 format!(
@@ -301,23 +272,12 @@ fn finish(path: &Path, mut hf: Heightfield, opts: &LoadOptions) -> Result<Height
 
 fn validate(path: &Path, hf: &Heightfield) -> Result<(), DemError> {
     if hf.width < 2 || hf.height < 2 {
-        return Err(invalid(
-            path,
-            format!(
-                "grid is {} × {} samples; need at least 2 × 2",
-                hf.width, hf.height
-            ),
-        ));
+        return Err(invalid(path, format!("grid is {} × {} samples; need at least 2 × 2", hf.width, hf.height)));
     }
     if hf.width.checked_mul(hf.height) != Some(hf.heights.len()) {
         return Err(corrupt(
             path,
-            format!(
-                "{} heights decoded for a {} × {} grid",
-                hf.heights.len(),
-                hf.width,
-                hf.height
-            ),
+            format!("{} heights decoded for a {} × {} grid", hf.heights.len(), hf.width, hf.height),
         ));
     }
     let [sx, sz] = hf.spacing_m;
@@ -332,16 +292,10 @@ fn validate(path: &Path, hf: &Heightfield) -> Result<(), DemError> {
     }
     let infinite = hf.heights.iter().filter(|h| h.is_infinite()).count();
     if infinite > 0 {
-        return Err(invalid(
-            path,
-            format!("{infinite} samples are infinite; heights must be finite (NaN = nodata)"),
-        ));
+        return Err(invalid(path, format!("{infinite} samples are infinite; heights must be finite (NaN = nodata)")));
     }
     if hf.heights.iter().all(|h| h.is_nan()) {
-        return Err(invalid(
-            path,
-            format!("all {} samples are nodata", hf.heights.len()),
-        ));
+        return Err(invalid(path, format!("all {} samples are nodata", hf.heights.len())));
     }
     Ok(())
 }

@@ -23,10 +23,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
     // IHDR is always the first chunk: width, height, bit depth, colour type.
     if bytes.len() < 33 || &bytes[12..16] != b"IHDR" {
-        return Err(corrupt(
-            path,
-            "the PNG header (IHDR) is missing or cut short",
-        ));
+        return Err(corrupt(path, "the PNG header (IHDR) is missing or cut short"));
     }
     let be32 = |o: usize| u32::from_be_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]);
     let (w, h) = (be32(16) as usize, be32(20) as usize);
@@ -43,16 +40,10 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
             ));
         }
         (0 | 4, d) if d < 8 => {
-            return Err(unsupported(
-                path,
-                format!("{d}-bit grayscale PNG; heights need 8 or 16 bits"),
-            ));
+            return Err(unsupported(path, format!("{d}-bit grayscale PNG; heights need 8 or 16 bits")));
         }
         (2 | 6, 16) => {
-            return Err(unsupported(
-                path,
-                "16-bit RGB PNG; Terrain-RGB is 8-bit RGB or RGBA",
-            ));
+            return Err(unsupported(path, "16-bit RGB PNG; Terrain-RGB is 8-bit RGB or RGBA"));
         }
         _ => {}
     }
@@ -67,17 +58,10 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         (_, d) => u64::from(d / 8).max(1),
     };
     let raw = (n as u64).saturating_mul(bytes_per_pixel);
-    if raw
-        > (bytes.len() as u64)
-            .saturating_mul(1100)
-            .saturating_add(1 << 20)
-    {
+    if raw > (bytes.len() as u64).saturating_mul(1100).saturating_add(1 << 20) {
         return Err(corrupt(
             path,
-            format!(
-                "the header promises {w} × {h} pixels but the file is only {} bytes",
-                bytes.len()
-            ),
+            format!("the header promises {w} × {h} pixels but the file is only {} bytes", bytes.len()),
         ));
     }
 
@@ -89,57 +73,31 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     match image {
         DynamicImage::ImageLuma8(img) => heights.extend(img.pixels().map(|p| f32::from(p.0[0]))),
         DynamicImage::ImageLuma16(img) => heights.extend(img.pixels().map(|p| f32::from(p.0[0]))),
-        DynamicImage::ImageLumaA8(img) => heights.extend(img.pixels().map(|p| {
-            if p.0[1] == 0 {
-                f32::NAN
-            } else {
-                f32::from(p.0[0])
-            }
-        })),
-        DynamicImage::ImageLumaA16(img) => heights.extend(img.pixels().map(|p| {
-            if p.0[1] == 0 {
-                f32::NAN
-            } else {
-                f32::from(p.0[0])
-            }
-        })),
-        DynamicImage::ImageRgb8(img) => {
-            heights.extend(img.pixels().map(|p| terrain_rgb(p.0[0], p.0[1], p.0[2])))
+        DynamicImage::ImageLumaA8(img) => {
+            heights.extend(img.pixels().map(|p| if p.0[1] == 0 { f32::NAN } else { f32::from(p.0[0]) }))
         }
-        DynamicImage::ImageRgba8(img) => heights.extend(img.pixels().map(|p| {
-            if p.0[3] == 0 {
-                f32::NAN
-            } else {
-                terrain_rgb(p.0[0], p.0[1], p.0[2])
-            }
-        })),
+        DynamicImage::ImageLumaA16(img) => {
+            heights.extend(img.pixels().map(|p| if p.0[1] == 0 { f32::NAN } else { f32::from(p.0[0]) }))
+        }
+        DynamicImage::ImageRgb8(img) => heights.extend(img.pixels().map(|p| terrain_rgb(p.0[0], p.0[1], p.0[2]))),
+        DynamicImage::ImageRgba8(img) => heights
+            .extend(img.pixels().map(|p| if p.0[3] == 0 { f32::NAN } else { terrain_rgb(p.0[0], p.0[1], p.0[2]) })),
         other => {
             return Err(unsupported(
                 path,
-                format!(
-                    "PNG colour layout {:?}; a DEM needs 8/16-bit grayscale or 8-bit Terrain-RGB",
-                    other.color()
-                ),
+                format!("PNG colour layout {:?}; a DEM needs 8/16-bit grayscale or 8-bit Terrain-RGB", other.color()),
             ));
         }
     }
     if heights.len() != n {
-        return Err(corrupt(
-            path,
-            format!("expected {n} samples, decoded {}", heights.len()),
-        ));
+        return Err(corrupt(path, format!("expected {n} samples, decoded {}", heights.len())));
     }
     Ok(Heightfield {
         width: w,
         height: h,
         heights,
         spacing_m: [1.0, 1.0],
-        georef: Georef {
-            crs: Crs::Unknown,
-            origin: [0.0, 0.0],
-            step: [1.0, -1.0],
-            local_tangent: None,
-        },
+        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
         source: file_name(path),
     })
 }

@@ -55,11 +55,7 @@ impl Grid<'_> {
     #[inline]
     fn vertex_height(&self, i: usize, j: usize) -> f64 {
         let h = self.sample(i, j);
-        if h.is_nan() {
-            self.filled.map_or(0.0, |f| f64::from(f[i * self.width + j]))
-        } else {
-            f64::from(h)
-        }
+        if h.is_nan() { self.filled.map_or(0.0, |f| f64::from(f[i * self.width + j])) } else { f64::from(h) }
     }
 }
 
@@ -104,19 +100,15 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // Step 2: borders, with their midpoints forced.
     let mx = midpoint((x0, x1));
     let mz = midpoint((z0, z1));
-    for (axis_x, coord, span, forced) in [
-        (false, z0, (x0, x1), mx),
-        (false, z1, (x0, x1), mx),
-        (true, x0, (z0, z1), mz),
-        (true, x1, (z0, z1), mz),
-    ] {
+    for (axis_x, coord, span, forced) in
+        [(false, z0, (x0, x1), mx), (false, z1, (x0, x1), mx), (true, x0, (z0, z1), mz), (true, x1, (z0, z1), mz)]
+    {
         refine_line(&mut cdt, grid, axis_x, coord, span, forced, target);
     }
 
     // Step 3: the dividing lines.
-    let handle_at = |cdt: &Cdt, x: u32, z: u32| {
-        cdt.locate_vertex(Point2::new(f64::from(x), f64::from(z))).map(|v| v.fix())
-    };
+    let handle_at =
+        |cdt: &Cdt, x: u32, z: u32| cdt.locate_vertex(Point2::new(f64::from(x), f64::from(z))).map(|v| v.fix());
     if let (Some(mx), Some(mz)) = (mx, mz) {
         insert_sample(&mut cdt, grid, mx, mz);
     }
@@ -165,7 +157,13 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         }
         if cdt.num_vertices() > MAX_VERTICES && std::env::var_os("TC_NOCAP").is_none() {
             let k = spec.key;
-            return Err(MeshError::TooDense { level: k.level, x: k.x, y: k.y, delta_m: spec.delta_m, limit: MAX_VERTICES });
+            return Err(MeshError::TooDense {
+                level: k.level,
+                x: k.x,
+                y: k.y,
+                delta_m: spec.delta_m,
+                limit: MAX_VERTICES,
+            });
         }
         let mut faces: Vec<FixedFaceHandle<_>> = touched
             .iter()
@@ -182,7 +180,13 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             let tri = f.vertices().map(|v| *v.data());
             scan_triangle(grid, clip, &tri, |i, j, e| {
                 if e > target && !lines.row_is_line(i) && !lines.col_is_line(j) && !lines.is_vertex(i, j) {
-                    eprintln!("MISSED {:?} {i} {j} {e} face {} key {:?} tri {:?}", spec.key, f.fix().index(), face_key(&cdt, f.fix()), tri.map(|v| (v.p.x, v.p.y, v.h)));
+                    eprintln!(
+                        "MISSED {:?} {i} {j} {e} face {} key {:?} tri {:?}",
+                        spec.key,
+                        f.fix().index(),
+                        face_key(&cdt, f.fix()),
+                        tri.map(|v| (v.p.x, v.p.y, v.h))
+                    );
                 }
             });
         }
@@ -215,9 +219,8 @@ fn footprint_relief(grid: &Grid, footprint: (Span, Span)) -> f64 {
 
 fn initial_cdt(grid: &Grid, spec: &ChunkSpec) -> Cdt {
     let ((x0, x1), (z0, z1)) = spec.footprint;
-    let inside = |v: &MeshVertex| {
-        v.x >= f64::from(x0) && v.x <= f64::from(x1) && v.z >= f64::from(z0) && v.z <= f64::from(z1)
-    };
+    let inside =
+        |v: &MeshVertex| v.x >= f64::from(x0) && v.x <= f64::from(x1) && v.z >= f64::from(z0) && v.z <= f64::from(z1);
     let (verts, edges) = match spec.parent {
         Some(p) => {
             let mut remap = vec![u32::MAX; p.vertices.len()];
@@ -488,7 +491,15 @@ impl Ord for Candidate {
     }
 }
 
-fn push_face(heap: &mut BinaryHeap<Candidate>, grid: &Grid, lines: &Lines, clip: (Span, Span), cdt: &Cdt, face: FixedFaceHandle<spade::handles::InnerTag>, target: f64) {
+fn push_face(
+    heap: &mut BinaryHeap<Candidate>,
+    grid: &Grid,
+    lines: &Lines,
+    clip: (Span, Span),
+    cdt: &Cdt,
+    face: FixedFaceHandle<spade::handles::InnerTag>,
+    target: f64,
+) {
     let f = cdt.face(face);
     let tri = f.vertices().map(|v| *v.data());
     let verts = face_key(cdt, face);
@@ -528,7 +539,12 @@ fn find_face(cdt: &Cdt, key: [u32; 3]) -> Option<FixedFaceHandle<spade::handles:
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
 /// triangle `tri` (clipped to `clip`); returns whether any valid sample was
 /// what it covers, or `None` for a zero-area triangle (which is not scanned).
-fn scan_triangle(grid: &Grid, clip: (Span, Span), tri: &[V; 3], mut visit: impl FnMut(u32, u32, f64)) -> Option<Coverage> {
+fn scan_triangle(
+    grid: &Grid,
+    clip: (Span, Span),
+    tri: &[V; 3],
+    mut visit: impl FnMut(u32, u32, f64),
+) -> Option<Coverage> {
     let [a, b, c] = tri.map(|v| (v.p.x, v.p.y, v.h));
     let det = (b.0 - a.0) * (c.1 - a.1) - (c.0 - a.0) * (b.1 - a.1);
     if det.abs() < 1e-12 {

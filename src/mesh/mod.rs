@@ -80,8 +80,18 @@ pub fn dem_normal(grid: &decimate::Grid, spacing_m: [f64; 2], x: f64, z: f64) ->
         _ => 0.0,
     };
     let mid = at(i, j);
-    let dx = slope(j.checked_sub(1).and_then(|j| at(i, j)), mid, (j + 1 < grid.width).then(|| at(i, j + 1)).flatten(), spacing_m[0]);
-    let dz = slope(i.checked_sub(1).and_then(|i| at(i, j)), mid, (i + 1 < grid.height).then(|| at(i + 1, j)).flatten(), spacing_m[1]);
+    let dx = slope(
+        j.checked_sub(1).and_then(|j| at(i, j)),
+        mid,
+        (j + 1 < grid.width).then(|| at(i, j + 1)).flatten(),
+        spacing_m[0],
+    );
+    let dz = slope(
+        i.checked_sub(1).and_then(|i| at(i, j)),
+        mid,
+        (i + 1 < grid.height).then(|| at(i + 1, j)).flatten(),
+        spacing_m[1],
+    );
     let n = [-dx, 1.0, -dz];
     let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
     n.map(|c| (c / len) as f32)

@@ -90,7 +90,8 @@ pub fn build_skirt(
             if !edge_set.contains(&(a.min(b), a.max(b))) {
                 continue; // that stretch of border is over nodata: no surface, no skirt
             }
-            let (ta, ba, tb, bb) = (base + 2 * k as u32, base + 2 * k as u32 + 1, base + 2 * k as u32 + 2, base + 2 * k as u32 + 3);
+            let (ta, ba, tb, bb) =
+                (base + 2 * k as u32, base + 2 * k as u32 + 1, base + 2 * k as u32 + 2, base + 2 * k as u32 + 3);
             out.indices.extend_from_slice(&[ta, ba, tb, tb, ba, bb]);
         }
     }

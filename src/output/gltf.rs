@@ -43,8 +43,7 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
             continue;
         }
         let p = optimise(part);
-        let local: Vec<[f32; 3]> =
-            p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
+        let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
         let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
         let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
         let nrm = push_vec3(&mut bin, &mut views, &mut accessors, &p.normals);
@@ -118,7 +117,7 @@ fn optimise(p: &Part) -> Part {
 }
 
 fn align4(bin: &mut Vec<u8>) {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
 }

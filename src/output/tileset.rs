@@ -109,7 +109,11 @@ pub fn tiles_box(min: [f64; 3], max: [f64; 3]) -> [f64; 12] {
 /// Builds the `tileset.json` document. `records` must be sorted by key.
 pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetExtras) -> Value {
     let find = |k: ChunkKey| records.binary_search_by(|r| r.key.cmp(&k)).ok().map(|i| &records[i]);
-    fn tile<'r>(tree: &ChunkTree, r: &'r TileRecord, find: &dyn Fn(ChunkKey) -> Option<&'r TileRecord>) -> (Value, [f64; 3], [f64; 3]) {
+    fn tile<'r>(
+        tree: &ChunkTree,
+        r: &'r TileRecord,
+        find: &dyn Fn(ChunkKey) -> Option<&'r TileRecord>,
+    ) -> (Value, [f64; 3], [f64; 3]) {
         let (mut lo, mut hi) = (r.min, r.max);
         let mut children = Vec::new();
         for c in tree.children(r.key) {
