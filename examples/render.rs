@@ -59,7 +59,13 @@ fn main() {
                 line(&mut img, p, q, image::Rgb([40, 40, 40]), 0.35);
             }
         }
-        let sp = c.surface.positions.iter().fold((f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY), |m, p| (m.0.min(p[0]), m.1.min(p[2]), m.2.max(p[0]), m.3.max(p[2])));
+        let sp = c
+            .surface
+            .positions
+            .iter()
+            .fold((f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY), |m, p| {
+                (m.0.min(p[0]), m.1.min(p[2]), m.2.max(p[0]), m.3.max(p[2]))
+            });
         let corners = [(sp.0, sp.1), (sp.2, sp.1), (sp.2, sp.3), (sp.0, sp.3)].map(|(x, z)| px(&[x, 0.0, z]));
         for k in 0..4 {
             line(&mut img, corners[k], corners[(k + 1) % 4], image::Rgb([200, 30, 30]), 1.0);

@@ -402,19 +402,6 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
     for i in z0..=z1 {
         for j in x0..=x1 {
             if !hf.get(i as usize, j as usize).is_nan() && !covered[(i - z0) as usize * w + (j - x0) as usize] {
-                if std::env::var_os("TC_DEBUG").is_some() {
-                    let near: Vec<_> = c
-                        .surface
-                        .triangles
-                        .iter()
-                        .map(|t| {
-                            let [a, b, d] = t.map(|k| verts[k as usize]);
-                            (barycentric(&a, &b, &d, f64::from(j), f64::from(i)).0, [a, b, d].map(|v| (v.x, v.z)))
-                        })
-                        .filter(|x| x.0 < 0.1)
-                        .collect();
-                    eprintln!("UNCOVERED {} ({j}, {i}) near {near:?}", name(c.key));
-                }
                 uncovered += 1;
             }
         }
@@ -442,13 +429,7 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
     let cv: Vec<MeshVertex> = c.surface.positions.iter().map(to_grid).collect();
     for (v, dy) in cv.iter().zip(&c.surface.morph_dy) {
         match loc.locate(v.x, v.z) {
-            Some((t, h)) => {
-                if (v.h + dy - h).abs() > 1.0 && std::env::var_os("TC_DEBUG").is_some() {
-                    let pt = p.surface.triangles[t as usize].map(|i| pv[i as usize]);
-                    eprintln!("GAP {} v {:?} dy {dy} parent h {h} tri {:?}", name(c.key), v, pt);
-                }
-                gap = gap.max((v.h + dy - h).abs())
-            }
+            Some((_, h)) => gap = gap.max((v.h + dy - h).abs()),
             None => missing += 1,
         }
     }

@@ -155,7 +155,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             // neighbour: this face is unchanged, so scan it again.
             push_face(&mut heap, grid, &lines, clip, &cdt, same, target);
         }
-        if cdt.num_vertices() > MAX_VERTICES && std::env::var_os("TC_NOCAP").is_none() {
+        if cdt.num_vertices() > MAX_VERTICES {
             let k = spec.key;
             return Err(MeshError::TooDense {
                 level: k.level,
@@ -173,22 +173,6 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         faces.dedup();
         for f in faces {
             push_face(&mut heap, grid, &lines, clip, &cdt, f, target);
-        }
-    }
-    if std::env::var_os("TC_DEBUG").is_some() {
-        for f in cdt.inner_faces() {
-            let tri = f.vertices().map(|v| *v.data());
-            scan_triangle(grid, clip, &tri, |i, j, e| {
-                if e > target && !lines.row_is_line(i) && !lines.col_is_line(j) && !lines.is_vertex(i, j) {
-                    eprintln!(
-                        "MISSED {:?} {i} {j} {e} face {} key {:?} tri {:?}",
-                        spec.key,
-                        f.fix().index(),
-                        face_key(&cdt, f.fix()),
-                        tri.map(|v| (v.p.x, v.p.y, v.h))
-                    );
-                }
-            });
         }
     }
     Ok(finish(grid, spec, &cdt, &lines, relief))
