@@ -4,6 +4,8 @@
 //! edge as a constraint), so moving each child vertex to the parent surface
 //! at its (x, z) reproduces the parent exactly, everywhere (DESIGN.md,
 //! promise 3). The glTF morph target stores `parent − own` as a y delta.
+//! [`SurfaceLocator`] finds the parent triangle under a point; `verify` uses
+//! it to re-measure the targets from the files.
 
 use crate::mesh::{ChunkMesh, MeshVertex};
 
@@ -114,11 +116,11 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
     (seg(a, b).min(seg(b, c)).min(seg(c, a)), h)
 }
 
-/// Height of the parent's surface (through its locator) under each of
-/// `points` (grid x, z), or the point's own height at the top level (delta 0).
-pub fn parent_heights(parent: Option<&SurfaceLocator>, points: &[MeshVertex]) -> Vec<f64> {
-    let Some(loc) = parent else {
-        return points.iter().map(|p| p.h).collect();
-    };
-    points.iter().map(|p| loc.locate(p.x, p.z).map_or(p.h, |(_, h)| h)).collect()
+/// Height of the parent chunk's surface under each vertex. The mesher
+/// carries it with every vertex (`MeshVertex::ph`): inherited vertices keep
+/// their own height, and each new one interpolates the face it lands in,
+/// which lies inside one parent triangle. `verify` re-measures it with
+/// [`SurfaceLocator`] from the written files.
+pub fn parent_heights(points: &[MeshVertex]) -> Vec<f64> {
+    points.iter().map(|p| p.ph).collect()
 }

@@ -21,7 +21,7 @@ use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
-use crate::morph::{SurfaceLocator, parent_heights};
+use crate::morph::parent_heights;
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
@@ -281,16 +281,11 @@ fn build_levels(
         tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (k, None)).collect();
     let mut parents: Vec<ChunkMesh> = Vec::new();
     while !work.is_empty() {
-        let locators: Vec<Option<SurfaceLocator>> = parents
-            .par_iter()
-            .enumerate()
-            .map(|(k, p)| work.iter().any(|w| w.1 == Some(k)).then(|| SurfaceLocator::new(p)))
-            .collect();
         let level = work[0].0.level;
         let delta = tree.delta_m[level as usize];
         let bar = progress_bar(opts.progress, work.len() as u64, level, tree.depth());
         let dir = tmp.join("tiles").join(level.to_string());
-        let results: Vec<Result<(ChunkMesh, LevelFigures, TileRecord), BuildError>> = work
+        let results: Vec<Result<(ChunkMesh, bool, LevelFigures, TileRecord), BuildError>> = work
             .par_iter()
             .map(|&(key, parent_idx)| {
                 let parent = parent_idx.map(|p| &parents[p]);
@@ -300,8 +295,7 @@ fn build_levels(
                 Timers::add(&timers.mesh, t);
                 let t = Instant::now();
                 let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-                let locator = parent_idx.and_then(|p| locators[p].as_ref());
-                let chunk = assemble(grid, hf.spacing_m, &mesh, locator, margin);
+                let chunk = assemble(grid, hf.spacing_m, &mesh, margin);
                 Timers::add(&timers.skirt_morph, t);
                 let t = Instant::now();
                 let glb = encode_glb(&chunk, &ctx);
@@ -318,7 +312,11 @@ fn build_levels(
                     skirt_triangles: chunk.skirt.triangle_count(),
                     vertices: chunk.surface.positions.len(),
                 };
-                Ok((mesh, figures, TileRecord { key, min, max, delta_m: delta }))
+                // A leaf's mesh is dropped here, not kept for a level that will not need it.
+                let leaf = mesh.meets(cfg.max_error_m) || tree.children(key).is_empty();
+                let (max_error_m, relief_m) = (mesh.max_error_m, mesh.relief_m);
+                let mesh = if leaf { ChunkMesh { max_error_m, relief_m, ..ChunkMesh::empty(key) } } else { mesh };
+                Ok((mesh, leaf, figures, TileRecord { key, min, max, delta_m: delta }))
             })
             .collect();
         bar.finish_and_clear();
@@ -327,14 +325,14 @@ fn build_levels(
         let mut next = Vec::new();
         let mut meshes = Vec::with_capacity(results.len());
         for r in results {
-            let (mesh, figures, rec) = r?;
+            let (mesh, leaf, figures, rec) = r?;
             lr.chunks += 1;
             lr.triangles += figures.triangles;
             lr.skirt_triangles += figures.skirt_triangles;
             lr.vertices += figures.vertices;
             lr.max_error_m = lr.max_error_m.max(mesh.max_error_m);
             records.push(rec);
-            let kids = if mesh.meets(cfg.max_error_m) { Vec::new() } else { tree.children(mesh.key) };
+            let kids = if leaf { Vec::new() } else { tree.children(mesh.key) };
             if kids.is_empty() {
                 lr.leaves += 1;
             }
@@ -367,7 +365,7 @@ struct LevelFigures {
 }
 
 /// Surface (written triangles only) with normals and morph targets, then skirts.
-fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, parent: Option<&SurfaceLocator>, margin_m: f64) -> Chunk {
+fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
     let mut remap = vec![u32::MAX; mesh.vertices.len()];
     let mut used = Vec::new();
     let mut indices = Vec::new();
@@ -383,7 +381,7 @@ fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, parent: Option<&Su
             indices.push(remap[v as usize]);
         }
     }
-    let parent_h = parent_heights(parent, &used);
+    let parent_h = parent_heights(&used);
     let surface = Part {
         positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
         normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),

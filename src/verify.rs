@@ -351,7 +351,7 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         .surface
         .positions
         .iter()
-        .map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1] })
+        .map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1], ph: p[1] })
         .collect();
     let tol = 1e-4 * ((x1 - x0) + (z1 - z0)) as f64;
     if verts.iter().any(|v| {
@@ -417,7 +417,7 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
 
 /// Morph targets on the parent surface; child triangles inside parent ones.
 fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut Vec<String>) -> f64 {
-    let to_grid = |q: &[f64; 3]| MeshVertex { x: q[0] / spacing[0], z: q[2] / spacing[1], h: q[1] };
+    let to_grid = |q: &[f64; 3]| MeshVertex { x: q[0] / spacing[0], z: q[2] / spacing[1], h: q[1], ph: q[1] };
     let pv: Vec<MeshVertex> = p.surface.positions.iter().map(to_grid).collect();
     let loc = SurfaceLocator::from_parts(&pv, &p.surface.triangles);
     // f32 rounding of both chunks' local coordinates and of the delta; on a

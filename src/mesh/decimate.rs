@@ -63,6 +63,10 @@ impl Grid<'_> {
 struct V {
     p: Point2<f64>,
     h: f64,
+    /// Height of the parent's surface here (= `h` at the top level): the
+    /// parent surface is linear inside every face (faces refine parent
+    /// triangles), so a new vertex takes it by interpolating its face's.
+    ph: f64,
 }
 
 impl HasPosition for V {
@@ -95,6 +99,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let relief = footprint_relief(grid, spec.footprint);
     let target = build_target(spec.delta_m, relief);
     let mut cdt = initial_cdt(grid, spec);
+    let nested = spec.parent.is_some();
     let profile_src: Vec<[V; 3]> = cdt.inner_faces().map(|f| f.vertices().map(|v| *v.data())).collect();
 
     // Step 2: borders, with their midpoints forced.
@@ -103,14 +108,14 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     for (axis_x, coord, span, forced) in
         [(false, z0, (x0, x1), mx), (false, z1, (x0, x1), mx), (true, x0, (z0, z1), mz), (true, x1, (z0, z1), mz)]
     {
-        refine_line(&mut cdt, grid, axis_x, coord, span, forced, target);
+        refine_line(&mut cdt, grid, axis_x, coord, span, forced, target, nested);
     }
 
     // Step 3: the dividing lines.
     let handle_at =
         |cdt: &Cdt, x: u32, z: u32| cdt.locate_vertex(Point2::new(f64::from(x), f64::from(z))).map(|v| v.fix());
     if let (Some(mx), Some(mz)) = (mx, mz) {
-        insert_sample(&mut cdt, grid, mx, mz);
+        insert_sample(&mut cdt, grid, mx, mz, nested);
     }
     if let Some(mx) = mx {
         let ends = [Some(z0), mz, Some(z1)];
@@ -121,10 +126,10 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         add_dividing_line(&mut cdt, grid, &profile_src, false, mz, &ends, handle_at);
     }
     if let Some(mx) = mx {
-        refine_line(&mut cdt, grid, true, mx, (z0, z1), mz, target);
+        refine_line(&mut cdt, grid, true, mx, (z0, z1), mz, target, nested);
     }
     if let Some(mz) = mz {
-        refine_line(&mut cdt, grid, false, mz, (x0, x1), mx, target);
+        refine_line(&mut cdt, grid, false, mz, (x0, x1), mx, target, nested);
     }
 
     // Step 4: greedy insertion of interior samples.
@@ -148,7 +153,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             continue;
         }
         let hint = spade::handles::FixedVertexHandle::from_index(c.verts[0] as usize);
-        let touched = insert_interior(&mut cdt, grid, c.j, c.i, hint);
+        let touched = insert_interior(&mut cdt, grid, c.j, c.i, hint, nested);
         lines.mark_vertex(c.i, c.j);
         if let Some(same) = find_face(&cdt, c.verts) {
             // Rounding put the sample just across this face's edge, into the
@@ -212,7 +217,7 @@ fn initial_cdt(grid: &Grid, spec: &ChunkSpec) -> Cdt {
             for (k, v) in p.vertices.iter().enumerate() {
                 if inside(v) {
                     remap[k] = verts.len() as u32;
-                    verts.push(V { p: Point2::new(v.x, v.z), h: v.h });
+                    verts.push(V { p: Point2::new(v.x, v.z), h: v.h, ph: v.h });
                 }
             }
             let mut edges = Vec::new();
@@ -231,9 +236,9 @@ fn initial_cdt(grid: &Grid, spec: &ChunkSpec) -> Cdt {
             (verts, edges)
         }
         None => {
-            let c = |j: u32, i: u32| V {
-                p: Point2::new(f64::from(j), f64::from(i)),
-                h: grid.vertex_height(i as usize, j as usize),
+            let c = |j: u32, i: u32| {
+                let h = grid.vertex_height(i as usize, j as usize);
+                V { p: Point2::new(f64::from(j), f64::from(i)), h, ph: h }
             };
             (vec![c(x0, z0), c(x1, z0), c(x1, z1), c(x0, z1)], vec![[0, 1], [1, 2], [2, 3], [0, 3]])
         }
@@ -241,13 +246,43 @@ fn initial_cdt(grid: &Grid, spec: &ChunkSpec) -> Cdt {
     Cdt::bulk_load_cdt(verts, edges).expect("footprint vertices are finite")
 }
 
-fn insert_sample(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32) -> spade::handles::FixedVertexHandle {
+fn insert_sample(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32, nested: bool) -> spade::handles::FixedVertexHandle {
     let p = Point2::new(f64::from(j), f64::from(i));
-    if let Some(v) = cdt.locate_vertex(p) {
-        return v.fix();
-    }
     let h = grid.vertex_height(i as usize, j as usize);
-    cdt.insert(V { p, h }).expect("sample positions are finite")
+    let ph = match cdt.locate(p) {
+        spade::PositionInTriangulation::OnVertex(v) => return v,
+        pos if nested => parent_height_at(cdt, pos, p),
+        _ => h,
+    };
+    cdt.insert(V { p, h, ph }).expect("sample positions are finite")
+}
+
+/// The parent surface's height at `p`, interpolated in the face (or along
+/// the edge) that `pos` says holds it.
+fn parent_height_at(cdt: &Cdt, pos: spade::PositionInTriangulation, p: Point2<f64>) -> f64 {
+    let lerp_edge = |a: &V, b: &V| {
+        let (dx, dz) = (b.p.x - a.p.x, b.p.y - a.p.y);
+        let t = (((p.x - a.p.x) * dx + (p.y - a.p.y) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
+        a.ph + t * (b.ph - a.ph)
+    };
+    match pos {
+        spade::PositionInTriangulation::OnVertex(v) => cdt.vertex(v).data().ph,
+        spade::PositionInTriangulation::OnEdge(e) => {
+            let e = cdt.directed_edge(e);
+            lerp_edge(e.from().data(), e.to().data())
+        }
+        spade::PositionInTriangulation::OnFace(f) => {
+            let [a, b, c] = cdt.face(f).vertices().map(|v| *v.data());
+            let det = (b.p.x - a.p.x) * (c.p.y - a.p.y) - (c.p.x - a.p.x) * (b.p.y - a.p.y);
+            if det.abs() < 1e-300 {
+                return a.ph;
+            }
+            let l1 = ((p.x - a.p.x) * (c.p.y - a.p.y) - (c.p.x - a.p.x) * (p.y - a.p.y)) / det;
+            let l2 = ((b.p.x - a.p.x) * (p.y - a.p.y) - (p.x - a.p.x) * (b.p.y - a.p.y)) / det;
+            (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph
+        }
+        _ => f64::NAN,
+    }
 }
 
 /// Inserts an interior sample. A sample can lie exactly on a constraint edge
@@ -263,10 +298,13 @@ fn insert_interior(
     j: u32,
     i: u32,
     hint: spade::handles::FixedVertexHandle,
+    nested: bool,
 ) -> Vec<spade::handles::FixedVertexHandle> {
     let p = Point2::new(f64::from(j), f64::from(i));
     let h = grid.vertex_height(i as usize, j as usize);
-    if let spade::PositionInTriangulation::OnFace(f) = cdt.locate_with_hint(p, hint) {
+    let pos = cdt.locate_with_hint(p, hint);
+    let ph = if nested { parent_height_at(cdt, pos, p) } else { h };
+    if let spade::PositionInTriangulation::OnFace(f) = pos {
         let mut on_edge = None;
         for e in cdt.face(f).adjacent_edges() {
             if !e.is_constraint_edge() {
@@ -283,13 +321,13 @@ fn insert_interior(
         }
         if let Some((edge, a, b)) = on_edge {
             cdt.remove_constraint_edge(edge);
-            let v = cdt.insert_with_hint(V { p, h }, a).expect("sample positions are finite");
+            let v = cdt.insert_with_hint(V { p, h, ph }, a).expect("sample positions are finite");
             cdt.add_constraint(a, v);
             cdt.add_constraint(v, b);
             return vec![v, a, b];
         }
     }
-    vec![cdt.insert_with_hint(V { p, h }, hint).expect("sample positions are finite")]
+    vec![cdt.insert_with_hint(V { p, h, ph }, hint).expect("sample positions are finite")]
 }
 
 /// Adds one dividing line (vertical when `vertical`, at `coord`) through the
@@ -313,7 +351,8 @@ fn add_dividing_line(
         };
         cdt.add_constraint_and_split(ha, hb, |p| {
             let mut t = if vertical { p.y } else { p.x };
-            let mut h = surface_on_line(parent_tris, vertical, c, t);
+            let ph = surface_on_line(parent_tris, vertical, c, t);
+            let mut h = ph;
             // A crossing that falls on a sample takes the sample itself, so
             // the line's own samples decide the line wherever they can.
             if (t - t.round()).abs() < 1e-6 {
@@ -325,7 +364,7 @@ fn add_dividing_line(
                 }
             }
             let p = if vertical { Point2::new(c, t) } else { Point2::new(t, c) };
-            V { p, h }
+            V { p, h, ph }
         });
     }
 }
@@ -358,7 +397,17 @@ fn surface_on_line(tris: &[[V; 3]], vertical: bool, c: f64, t: f64) -> f64 {
 /// 1-D greedy refinement of the line `x = coord` (`vertical`) or `z = coord`
 /// over `span`: force `forced`, then split every interval at its worst valid
 /// sample until all are within `target`.
-fn refine_line(cdt: &mut Cdt, grid: &Grid, vertical: bool, coord: u32, span: Span, forced: Option<u32>, target: f64) {
+#[allow(clippy::too_many_arguments)]
+fn refine_line(
+    cdt: &mut Cdt,
+    grid: &Grid,
+    vertical: bool,
+    coord: u32,
+    span: Span,
+    forced: Option<u32>,
+    target: f64,
+    nested: bool,
+) {
     let c = f64::from(coord);
     let (lo, hi) = (f64::from(span.0), f64::from(span.1));
     let mut pts: Vec<(f64, f64)> = cdt
@@ -374,7 +423,7 @@ fn refine_line(cdt: &mut Cdt, grid: &Grid, vertical: bool, coord: u32, span: Spa
         && !pts.iter().any(|p| p.0 == f64::from(f))
     {
         let (j, i) = sample(f);
-        insert_sample(cdt, grid, j, i);
+        insert_sample(cdt, grid, j, i, nested);
         pts.push((f64::from(f), grid.vertex_height(i as usize, j as usize)));
     }
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -398,7 +447,7 @@ fn refine_line(cdt: &mut Cdt, grid: &Grid, vertical: bool, coord: u32, span: Spa
         }
         if let Some((_, t, h)) = worst {
             let (j, i) = sample(t);
-            insert_sample(cdt, grid, j, i);
+            insert_sample(cdt, grid, j, i, nested);
             let m = (f64::from(t), h);
             stack.push((a, m));
             stack.push((m, b));
@@ -610,8 +659,10 @@ fn cell_has_data(grid: &Grid, tri: &[V; 3]) -> bool {
 }
 
 fn finish(grid: &Grid, spec: &ChunkSpec, cdt: &Cdt, lines: &Lines, relief_m: f64) -> ChunkMesh {
-    let vertices: Vec<MeshVertex> =
-        cdt.vertices().map(|v| MeshVertex { x: v.data().p.x, z: v.data().p.y, h: v.data().h }).collect();
+    let vertices: Vec<MeshVertex> = cdt
+        .vertices()
+        .map(|v| MeshVertex { x: v.data().p.x, z: v.data().p.y, h: v.data().h, ph: v.data().ph })
+        .collect();
     let mut triangles = Vec::with_capacity(cdt.num_inner_faces());
     let mut kept = Vec::with_capacity(cdt.num_inner_faces());
     let mut max_err: f64 = 0.0;

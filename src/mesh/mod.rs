@@ -18,6 +18,9 @@ pub struct MeshVertex {
     pub z: f64,
     /// Height in metres (the DEM sample at sample positions).
     pub h: f64,
+    /// Height of the parent chunk's surface at (x, z), metres (= `h` at the
+    /// top level); the morph target is `ph − h`.
+    pub ph: f64,
 }
 
 /// One chunk's surface as the mesher leaves it: every triangle of the
