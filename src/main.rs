@@ -232,6 +232,12 @@ fn print_summary(r: &Report, out: &std::path::Path) {
         s.total,
         r.threads
     );
+    if r.refine_levels > 0 {
+        println!(
+            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than 65 535 vertices",
+            r.refine_levels
+        );
+    }
     if let Some(b) = r.peak_rss_bytes {
         println!("peak memory: {:.1} MB", b as f64 / 1e6);
     }

@@ -18,7 +18,7 @@ use crate::chunk::{Chunk, Part};
 use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::morph::parent_heights;
@@ -53,7 +53,7 @@ pub enum BuildError {
     /// The output directory exists and `--force` was not given.
     #[error("{0}: already exists (use --force to replace it)")]
     OutputExists(PathBuf),
-    /// A chunk could not meet its δ within u16 indices even with extra levels.
+    /// A chunk could not meet its δ within u16 indices even with many refine levels.
     #[error(transparent)]
     Mesh(#[from] MeshError),
     /// Writing failed.
@@ -122,8 +122,9 @@ pub struct Report {
     pub peak_rss_bytes: Option<u64>,
     /// Threads used.
     pub threads: usize,
-    /// Levels added below the size-based depth so coarse chunks fit u16.
-    pub extra_levels: u32,
+    /// Levels added at the bottom (same footprint, half the δ) so that the
+    /// coarser chunks fit u16 indices.
+    pub refine_levels: u32,
 }
 
 /// Wall time per pipeline stage, seconds.
@@ -218,29 +219,22 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     let t_plan = t.elapsed();
     let t = Instant::now();
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
-    // relief) gets more room by deepening the tree, which doubles every δ.
-    let mut extra = 0;
+    // relief against a small error) gets a larger δ: one more level at the
+    // bottom refines the leaves in place, and every δ above doubles.
+    let mut refine = 0;
     loop {
-        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.leaf_cells, extra);
+        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.leaf_cells, refine);
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         match build_levels(hf, &grid, &tree, opts, tmp) {
             Ok((mut report, records)) => {
-                report.extra_levels = extra;
+                report.refine_levels = refine;
                 return Ok((report, tree, records, t_plan, t.elapsed()));
             }
-            Err(BuildError::Mesh(e)) if (tree.xs.len() < 31) && tree_can_deepen(&tree) => {
-                let _ = e;
-                extra += 1;
-            }
+            Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
             Err(e) => return Err(e),
         }
     }
-}
-
-fn tree_can_deepen(tree: &ChunkTree) -> bool {
-    let d = tree.depth() as usize;
-    tree.xs[d].iter().any(|s| s.1 - s.0 >= 2) || tree.zs[d].iter().any(|s| s.1 - s.0 >= 2)
 }
 
 struct Timers {
@@ -290,7 +284,14 @@ fn build_levels(
             .map(|&(key, parent_idx)| {
                 let parent = parent_idx.map(|p| &parents[p]);
                 let t = Instant::now();
-                let spec = ChunkSpec { key, footprint: tree.footprint(key), delta_m: delta, parent };
+                let spec = ChunkSpec {
+                    key,
+                    footprint: tree.footprint(key),
+                    delta_m: delta,
+                    parent,
+                    max_vertices: MAX_VERTICES,
+                    dividing_lines: tree.splits(level),
+                };
                 let mesh = build_chunk(grid, &spec)?;
                 Timers::add(&timers.mesh, t);
                 let t = Instant::now();

@@ -9,7 +9,11 @@
 //! `(L, x, y)` is just the index of its column and row interval at level L.
 //!
 //! Level `D` is the first at which no chunk is wider than `leaf_cells`, so a
-//! leaf at full sample density still fits u16 indices. δ(L) = max_error·2^(D−L)
+//! leaf at full sample density still fits u16 indices. Where a coarse chunk
+//! cannot meet its δ within 65 535 vertices (rough ground against a small
+//! error), the planner adds levels at the bottom that keep their parent's
+//! footprint and only halve δ: every δ above doubles, the leaves keep their
+//! size, and the pyramid still reaches one top chunk. δ(L) = max_error·2^(D−L)
 //! (Ulrich 2002, §3: each level halves the error of the one above). Which
 //! chunks exist is decided later, by the mesher: a chunk whose TIN already
 //! meets `max_error` has no children, and a footprint with no valid sample is
@@ -43,10 +47,12 @@ pub struct ChunkTree {
 impl ChunkTree {
     /// Plans the tree for a `width` × `height` grid (samples, both ≥ 2).
     ///
-    /// `leaf_cells`: the widest a deepest-level chunk may be, in cells (≥ 1).
-    /// `extra_levels`: levels to add below the size-based depth (used when a
-    /// coarse chunk cannot meet its δ within the u16 vertex limit).
-    pub fn plan(width: usize, height: usize, max_error_m: f64, leaf_cells: u32, extra_levels: u32) -> Self {
+    /// `leaf_cells`: the widest a chunk of the last splitting level may be,
+    /// in cells (≥ 1). `refine_levels`: levels added below it that keep
+    /// their parent's footprint and only halve δ. They are used when a coarse
+    /// chunk cannot meet its δ within the u16 vertex limit: every level's δ
+    /// doubles while the footprints stay, so the leaves keep their size.
+    pub fn plan(width: usize, height: usize, max_error_m: f64, leaf_cells: u32, refine_levels: u32) -> Self {
         let wc = (width - 1) as u32;
         let hc = (height - 1) as u32;
         // Near-square top cells: no top chunk has an aspect ratio over 2.
@@ -55,25 +61,30 @@ impl ChunkTree {
         let mut xs = vec![split_even(wc, nx)];
         let mut zs = vec![split_even(hc, nz)];
         let widest = |l: &Vec<Span>| l.iter().map(|s| s.1 - s.0).max().unwrap_or(0);
-        let mut extra = extra_levels;
         loop {
             let (x, z) = (xs.last().unwrap(), zs.last().unwrap());
-            let big = widest(x).max(widest(z)) > leaf_cells;
-            let can_split = widest(x) >= 2 || widest(z) >= 2;
-            if !can_split || !(big || extra > 0) {
+            if widest(x).max(widest(z)) <= leaf_cells || (widest(x) < 2 && widest(z) < 2) {
                 break;
-            }
-            if !big {
-                extra -= 1;
             }
             let nx = x.iter().flat_map(|&s| split_span(s)).collect();
             let nz = z.iter().flat_map(|&s| split_span(s)).collect();
             xs.push(nx);
             zs.push(nz);
         }
+        for _ in 0..refine_levels.min(24) {
+            xs.push(xs.last().unwrap().clone());
+            zs.push(zs.last().unwrap().clone());
+        }
         let depth = xs.len() - 1;
         let delta_m = (0..=depth).map(|l| max_error_m * f64::from(1u32 << (depth - l).min(31))).collect();
         ChunkTree { xs, zs, delta_m }
+    }
+
+    /// Whether the chunks of `level` are cut into smaller children (so their
+    /// TINs must keep the dividing lines), rather than refined in place.
+    pub fn splits(&self, level: u32) -> bool {
+        let l = level as usize;
+        l + 1 < self.xs.len() && (self.xs[l + 1] != self.xs[l] || self.zs[l + 1] != self.zs[l])
     }
 
     /// Deepest level index.
@@ -209,6 +220,20 @@ mod tests {
         let t = ChunkTree::plan(2, 2, 1.0, 200, 0);
         assert_eq!(t.depth(), 0);
         assert_eq!(t.footprint(t.roots()[0]), ((0, 1), (0, 1)));
+    }
+
+    #[test]
+    fn refine_levels_keep_the_leaf_footprints_and_double_every_delta() {
+        let base = ChunkTree::plan(1025, 1025, 1.0, 128, 0);
+        let deep = ChunkTree::plan(1025, 1025, 1.0, 128, 2);
+        assert_eq!(deep.depth(), base.depth() + 2);
+        assert_eq!(deep.xs[deep.depth() as usize], base.xs[base.depth() as usize]);
+        assert_eq!(deep.delta_m[0], 4.0 * base.delta_m[0]);
+        assert!(deep.splits(0) && !deep.splits(base.depth()) && !deep.splits(deep.depth()));
+        let leaf = ChunkKey { level: deep.depth(), x: 3, y: 5 };
+        let up = deep.parent(leaf).unwrap();
+        assert_eq!(deep.footprint(up), deep.footprint(leaf));
+        assert_eq!(deep.children(up), vec![leaf]);
     }
 
     #[test]

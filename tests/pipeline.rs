@@ -96,6 +96,12 @@ fn real_fixtures_verify_and_pass_the_khronos_validator() {
         ("dfw_texas_srtm3.tif", 1.0),
         ("salish_sea_topobathy_f32.tif", 5.0),
         ("west_bijou_gully_3m.asc", 0.25),
+        ("california_crop_deflate.tif", 1.0),
+        ("hgt_mosaic", 1.0),
+        ("kilauea_crop_i16.bt", 0.5),
+        ("seamount_crop_f32.exr", 0.5),
+        ("kattegat_crop_u8.png", 0.5),
+        ("fuji_crop_terrainrgb.png", 0.5),
     ] {
         let (_t, out, report) = build_ok(&fixture(name), max_error);
         let v = verified(&out);
@@ -392,6 +398,15 @@ fn bad_input_exits_2_names_the_problem_and_writes_nothing() {
     assert_bad_input(&["build", strip.to_str().unwrap(), "-o", o], &out, "1");
     let empty = write_asc(tmp.path(), "empty.asc", 10, 10, |_, _| -9999.0);
     assert_bad_input(&["build", empty.to_str().unwrap(), "-o", o], &out, "nodata");
+    let (a, b) = (tmp.path().join("N10E010.hgt"), tmp.path().join("N10E011.hgt"));
+    std::fs::write(&a, vec![0u8; 2 * 11 * 11]).unwrap();
+    std::fs::write(&b, vec![0u8; 2 * 21 * 21]).unwrap();
+    assert_bad_input(&["build", a.to_str().unwrap(), b.to_str().unwrap(), "-o", o], &out, "mosaic");
+    let corrupt = tmp.path().join("corrupt.tif");
+    let mut bytes = std::fs::read(fixture("salish_sea_topobathy_f32.tif")).unwrap();
+    bytes.truncate(bytes.len() / 2);
+    std::fs::write(&corrupt, bytes).unwrap();
+    assert_bad_input(&["build", corrupt.to_str().unwrap(), "-o", o], &out, "corrupt.tif");
 }
 
 #[test]

@@ -91,6 +91,11 @@ pub struct ChunkSpec<'p> {
     pub delta_m: f64,
     /// The parent's mesh (None at the top level).
     pub parent: Option<&'p ChunkMesh>,
+    /// Most vertices allowed ([`MAX_VERTICES`] for u16 output).
+    pub max_vertices: usize,
+    /// Add the dividing lines (the children's borders). Off only for the
+    /// unconstrained single-TIN baseline the benchmarks compare against.
+    pub dividing_lines: bool,
 }
 
 /// Builds one chunk's TIN (see the module comment for the four steps).
@@ -103,8 +108,10 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let profile_src: Vec<[V; 3]> = cdt.inner_faces().map(|f| f.vertices().map(|v| *v.data())).collect();
 
     // Step 2: borders, with their midpoints forced.
-    let mx = midpoint((x0, x1));
-    let mz = midpoint((z0, z1));
+    let (mx, mz) = match spec.dividing_lines {
+        true => (midpoint((x0, x1)), midpoint((z0, z1))),
+        false => (None, None),
+    };
     for (axis_x, coord, span, forced) in
         [(false, z0, (x0, x1), mx), (false, z1, (x0, x1), mx), (true, x0, (z0, z1), mz), (true, x1, (z0, z1), mz)]
     {
@@ -160,14 +167,14 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             // neighbour: this face is unchanged, so scan it again.
             push_face(&mut heap, grid, &lines, clip, &cdt, same, target);
         }
-        if cdt.num_vertices() > MAX_VERTICES {
+        if cdt.num_vertices() > spec.max_vertices {
             let k = spec.key;
             return Err(MeshError::TooDense {
                 level: k.level,
                 x: k.x,
                 y: k.y,
                 delta_m: spec.delta_m,
-                limit: MAX_VERTICES,
+                limit: spec.max_vertices,
             });
         }
         let mut faces: Vec<FixedFaceHandle<_>> = touched
