@@ -189,9 +189,11 @@ fn three_by_three_grid_keeps_its_one_bump() {
     let r = build(&options(&dem, &out, 0.5, 0)).unwrap();
     verified(&out);
     khronos_validate(&out);
-    // The centre is the forced crossing of the dividing lines: all 9 samples, 8 triangles.
-    assert_eq!(r.levels[0].vertices, 9);
-    assert_eq!(r.levels[0].triangles, 8);
+    // One chunk, no children: the four corners plus the bump, four triangles, exact.
+    assert_eq!(r.levels.len(), 1);
+    assert_eq!(r.levels[0].vertices, 5);
+    assert_eq!(r.levels[0].triangles, 4);
+    assert_eq!(r.levels[0].max_error_m, 0.0);
 }
 
 #[test]
