@@ -270,61 +270,64 @@ fn build_levels(
     };
     let mut records = Vec::new();
     let mut bytes = AtomicU64::new(0);
-    // (key, index of the parent in the previous level's meshes)
-    let mut work: Vec<(ChunkKey, Option<usize>)> =
-        tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (k, None)).collect();
-    let mut parents: Vec<ChunkMesh> = Vec::new();
+    // Each level's work: groups of sibling keys with their parent's mesh,
+    // which is dropped as soon as its children are built (memory holds about
+    // one level of meshes, not two).
+    let mut work: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
+        tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (None, vec![k])).collect();
     while !work.is_empty() {
-        let level = work[0].0.level;
+        let level = work[0].1[0].level;
         let delta = tree.delta_m[level as usize];
-        let bar = progress_bar(opts.progress, work.len() as u64, level, tree.depth());
-        let dir = tmp.join("tiles").join(level.to_string());
-        let results: Vec<Result<(ChunkMesh, bool, LevelFigures, TileRecord), BuildError>> = work
-            .par_iter()
-            .map(|&(key, parent_idx)| {
-                let parent = parent_idx.map(|p| &parents[p]);
-                let t = Instant::now();
-                let spec = ChunkSpec {
-                    key,
-                    footprint: tree.footprint(key),
-                    delta_m: delta,
-                    parent,
-                    max_vertices: MAX_VERTICES,
-                    dividing_lines: tree.splits(level),
-                };
-                let mesh = build_chunk(grid, &spec)?;
-                Timers::add(&timers.mesh, t);
-                let t = Instant::now();
-                let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-                let chunk = assemble(grid, hf.spacing_m, &mesh, margin);
-                Timers::add(&timers.skirt_morph, t);
-                let t = Instant::now();
-                let glb = encode_glb(&chunk, &ctx);
-                let path = tmp.join(tile_uri(key));
-                std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
-                    .and_then(|_| std::fs::write(&path, &glb))
-                    .map_err(|source| BuildError::Io { path: path.clone(), source })?;
-                bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
-                Timers::add(&timers.write, t);
-                bar.inc(1);
-                let (min, max) = bounds(&chunk);
-                let figures = LevelFigures {
-                    triangles: chunk.surface.triangle_count(),
-                    skirt_triangles: chunk.skirt.triangle_count(),
-                    vertices: chunk.surface.positions.len(),
-                };
-                // A leaf's mesh is dropped here, not kept for a level that will not need it.
-                let leaf = mesh.meets(cfg.max_error_m) || tree.children(key).is_empty();
-                let (max_error_m, relief_m) = (mesh.max_error_m, mesh.relief_m);
-                let mesh = if leaf { ChunkMesh { max_error_m, relief_m, ..ChunkMesh::empty(key) } } else { mesh };
-                Ok((mesh, leaf, figures, TileRecord { key, min, max, delta_m: delta }))
+        let count: usize = work.iter().map(|g| g.1.len()).sum();
+        let bar = progress_bar(opts.progress, count as u64, level, tree.depth());
+        let build_one = |key: ChunkKey, parent: Option<&ChunkMesh>| {
+            let t = Instant::now();
+            let spec = ChunkSpec {
+                key,
+                footprint: tree.footprint(key),
+                delta_m: delta,
+                parent,
+                max_vertices: MAX_VERTICES,
+                dividing_lines: tree.splits(level),
+            };
+            let mesh = build_chunk(grid, &spec)?;
+            Timers::add(&timers.mesh, t);
+            let t = Instant::now();
+            let margin = tree.delta_m[(level as usize).saturating_sub(2)];
+            let chunk = assemble(grid, hf.spacing_m, &mesh, margin);
+            Timers::add(&timers.skirt_morph, t);
+            let t = Instant::now();
+            let glb = encode_glb(&chunk, &ctx);
+            let path = tmp.join(tile_uri(key));
+            std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
+                .and_then(|_| std::fs::write(&path, &glb))
+                .map_err(|source| BuildError::Io { path: path.clone(), source })?;
+            bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
+            Timers::add(&timers.write, t);
+            bar.inc(1);
+            let (min, max) = bounds(&chunk);
+            let figures = LevelFigures {
+                triangles: chunk.surface.triangle_count(),
+                skirt_triangles: chunk.skirt.triangle_count(),
+                vertices: chunk.surface.positions.len(),
+            };
+            // A leaf's mesh is dropped here, not kept for a level that will not need it.
+            let leaf = mesh.meets(cfg.max_error_m) || tree.children(key).is_empty();
+            let (max_error_m, relief_m) = (mesh.max_error_m, mesh.relief_m);
+            let mesh = if leaf { ChunkMesh { max_error_m, relief_m, ..ChunkMesh::empty(key) } } else { mesh };
+            Ok((mesh, leaf, figures, TileRecord { key, min, max, delta_m: delta }))
+        };
+        let results: Vec<Result<(ChunkMesh, bool, LevelFigures, TileRecord), BuildError>> = std::mem::take(&mut work)
+            .into_par_iter()
+            .flat_map_iter(|(parent, keys)| {
+                let out: Vec<_> = keys.par_iter().map(|&k| build_one(k, parent.as_ref())).collect();
+                drop(parent);
+                out
             })
             .collect();
         bar.finish_and_clear();
-        let _ = dir;
         let mut lr = LevelReport { level, delta_m: delta, ..LevelReport::default() };
         let mut next = Vec::new();
-        let mut meshes = Vec::with_capacity(results.len());
         for r in results {
             let (mesh, leaf, figures, rec) = r?;
             lr.chunks += 1;
@@ -337,17 +340,12 @@ fn build_levels(
             if kids.is_empty() {
                 lr.leaves += 1;
             }
-            let before = next.len();
-            for c in kids {
-                if !has_voids || has_valid(grid, tree, c) {
-                    next.push((c, Some(meshes.len())));
-                }
+            let kids: Vec<ChunkKey> = kids.into_iter().filter(|&c| !has_voids || has_valid(grid, tree, c)).collect();
+            if !kids.is_empty() {
+                next.push((Some(mesh), kids));
             }
-            // Only meshes with children to build are kept for the next level.
-            meshes.push(if next.len() > before { mesh } else { ChunkMesh::empty(mesh.key) });
         }
         report.levels.push(lr);
-        parents = meshes;
         work = next;
     }
     records.sort_by_key(|r| r.key);
