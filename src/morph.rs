@@ -54,41 +54,31 @@ impl<'m> SurfaceLocator<'m> {
         SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, buckets }
     }
 
-    /// The triangle containing (x, z) (the least-outside one if rounding
-    /// puts the point just outside all) and the interpolated height there.
-    pub fn locate(&self, x: f64, z: f64) -> Option<(u32, f64)> {
+    /// The triangle containing (x, z), allowing `tol` grid units of rounding:
+    /// among the triangles within `tol`, the one with the largest area (on an
+    /// edge shared with a zero-width sliver, the sliver's plane means
+    /// nothing); if none is that close, the nearest. Returns it and the
+    /// interpolated height there.
+    pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
         let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
         let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
-        // Among triangles that contain the point, prefer the one with the
-        // largest area: on an edge shared with a zero-width sliver, the
-        // sliver's plane is meaningless. Only if none contains it (rounding)
-        // fall back to the nearest triangle.
-        let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
-        for &t in bucket {
-            let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-            let det = (p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z);
-            if det == 0.0 {
-                continue;
-            }
-            let l1 = ((x - a.x) * (q.z - a.z) - (q.x - a.x) * (z - a.z)) / det;
-            let l2 = ((p.x - a.x) * (z - a.z) - (x - a.x) * (p.z - a.z)) / det;
-            let l0 = 1.0 - l1 - l2;
-            if l0 >= -1e-12 && l1 >= -1e-12 && l2 >= -1e-12 && inside.is_none_or(|b| det.abs() > b.0) {
-                inside = Some((det.abs(), t, l0 * a.h + l1 * p.h + l2 * q.h));
-            }
-        }
-        if let Some((_, t, h)) = inside {
-            return Some((t, h));
-        }
-        let mut best: Option<(f64, u32, f64)> = None;
+        let mut within: Option<(f64, u32, f64)> = None; // (area, t, h)
+        let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
         for &t in bucket {
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
             let (outside, h) = barycentric(&a, &p, &q, x, z);
-            if best.is_none_or(|b| outside < b.0) {
-                best = Some((outside, t, h));
+            if !outside.is_finite() {
+                continue;
+            }
+            let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
+            if outside <= tol && within.is_none_or(|w| area > w.0) {
+                within = Some((area, t, h));
+            }
+            if nearest.is_none_or(|n| outside < n.0) {
+                nearest = Some((outside, t, h));
             }
         }
-        best.filter(|b| b.0 < 1e-3).map(|b| (b.1, b.2))
+        within.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 < 1e-3).map(|n| (n.1, n.2)))
     }
 }
 
