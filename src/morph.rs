@@ -54,15 +54,15 @@ impl<'m> SurfaceLocator<'m> {
         SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, buckets }
     }
 
-    /// The triangle containing (x, z), allowing `tol` grid units of rounding:
-    /// among the triangles within `tol`, the one with the largest area (on an
-    /// edge shared with a zero-width sliver, the sliver's plane means
-    /// nothing); if none is that close, the nearest. Returns it and the
+    /// The triangle containing (x, z): among those that contain it exactly,
+    /// the one with the largest area (on an edge shared with a zero-width
+    /// sliver, the sliver's plane means nothing); if rounding left it inside
+    /// none, the nearest one within `tol` grid units. Returns it and the
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
         let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
         let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
-        let mut within: Option<(f64, u32, f64)> = None; // (area, t, h)
+        let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
         let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
         for &t in bucket {
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
@@ -71,14 +71,14 @@ impl<'m> SurfaceLocator<'m> {
                 continue;
             }
             let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
-            if outside <= tol && within.is_none_or(|w| area > w.0) {
-                within = Some((area, t, h));
+            if outside == 0.0 && inside.is_none_or(|w| area > w.0) {
+                inside = Some((area, t, h));
             }
             if nearest.is_none_or(|n| outside < n.0) {
                 nearest = Some((outside, t, h));
             }
         }
-        within.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 < 1e-3).map(|n| (n.1, n.2)))
+        inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= tol.max(1e-6)).map(|n| (n.1, n.2)))
     }
 }
 
