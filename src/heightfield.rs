@@ -89,6 +89,19 @@ pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
 }
 
 impl Heightfield {
+    /// A grid whose file says nothing about where it is: 1 m spacing,
+    /// unknown CRS, north-up (overridable with `--spacing`).
+    pub fn ungeoreferenced(width: usize, height: usize, heights: Vec<f32>, source: String) -> Self {
+        Heightfield {
+            width,
+            height,
+            heights,
+            spacing_m: [1.0, 1.0],
+            georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
+            source,
+        }
+    }
+
     /// Height of sample (row `i`, column `j`); `NaN` for nodata.
     #[inline]
     pub fn get(&self, i: usize, j: usize) -> f32 {

@@ -7,7 +7,7 @@
 //! [`SurfaceLocator`] finds the parent triangle under a point; `verify` uses
 //! it to re-measure the targets from the files.
 
-use crate::mesh::{ChunkMesh, MeshVertex};
+use crate::mesh::MeshVertex;
 
 /// Finds the triangle of a mesh under a point, with a bucket grid.
 pub struct SurfaceLocator<'m> {
@@ -21,11 +21,6 @@ pub struct SurfaceLocator<'m> {
 }
 
 impl<'m> SurfaceLocator<'m> {
-    /// Indexes all of `mesh`'s triangles (written or not).
-    pub fn new(mesh: &'m ChunkMesh) -> Self {
-        Self::from_parts(&mesh.vertices, &mesh.triangles)
-    }
-
     /// Indexes the given triangles.
     pub fn from_parts(verts: &'m [MeshVertex], tris: &'m [[u32; 3]]) -> Self {
         let (mut x0, mut z0, mut x1, mut z1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
@@ -104,13 +99,4 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
         ((x - p.x - t * dx).powi(2) + (z - p.z - t * dz).powi(2)).sqrt()
     };
     (seg(a, b).min(seg(b, c)).min(seg(c, a)), h)
-}
-
-/// Height of the parent chunk's surface under each vertex. The mesher
-/// carries it with every vertex (`MeshVertex::ph`): inherited vertices keep
-/// their own height, and each new one interpolates the face it lands in,
-/// which lies inside one parent triangle. `verify` re-measures it with
-/// [`SurfaceLocator`] from the written files.
-pub fn parent_heights(points: &[MeshVertex]) -> Vec<f64> {
-    points.iter().map(|p| p.ph).collect()
 }

@@ -21,7 +21,6 @@ use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
-use crate::morph::parent_heights;
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
@@ -380,7 +379,7 @@ fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> 
             indices.push(remap[v as usize]);
         }
     }
-    let parent_h = parent_heights(&used);
+    let parent_h: Vec<f64> = used.iter().map(|v| v.ph).collect();
     let surface = Part {
         positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
         normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),

@@ -9,7 +9,7 @@ use std::path::Path;
 use ::exr::prelude::{AnyChannel, FlatSamples, ReadChannels, ReadLayers};
 
 use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
-use crate::heightfield::{Crs, Georef, Heightfield};
+use crate::heightfield::Heightfield;
 
 /// Channel names that mean "the height", most preferred first.
 const PREFERRED: [&str; 4] = ["Y", "Z", "R", "height"];
@@ -90,14 +90,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     if heights.len() != n {
         return Err(corrupt(path, format!("expected {n} samples for {w} × {h}, found {}", heights.len())));
     }
-    Ok(Heightfield {
-        width: w,
-        height: h,
-        heights,
-        spacing_m: [1.0, 1.0],
-        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
-        source: file_name(path),
-    })
+    Ok(Heightfield::ungeoreferenced(w, h, heights, file_name(path)))
 }
 
 fn exr_error(path: &Path, e: ::exr::error::Error) -> DemError {

@@ -49,14 +49,7 @@ pub(super) fn load_single(path: &Path, spacing_given: bool) -> Result<Heightfiel
             let total = sample_count(path, n, n)?;
             let mut heights = vec![f32::NAN; total];
             fill(path, n, &mut heights, n, 0, 0)?;
-            Ok(Heightfield {
-                width: n,
-                height: n,
-                heights,
-                spacing_m: [1.0, 1.0],
-                georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
-                source: file_name(path),
-            })
+            Ok(Heightfield::ungeoreferenced(n, n, heights, file_name(path)))
         }
         None => Err(invalid(
             path,

@@ -16,7 +16,7 @@ use std::path::Path;
 use image::{DynamicImage, ImageError, ImageFormat, ImageReader};
 
 use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
-use crate::heightfield::{Crs, Georef, Heightfield};
+use crate::heightfield::Heightfield;
 
 /// Read a PNG heightmap.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
@@ -92,14 +92,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     if heights.len() != n {
         return Err(corrupt(path, format!("expected {n} samples, decoded {}", heights.len())));
     }
-    Ok(Heightfield {
-        width: w,
-        height: h,
-        heights,
-        spacing_m: [1.0, 1.0],
-        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
-        source: file_name(path),
-    })
+    Ok(Heightfield::ungeoreferenced(w, h, heights, file_name(path)))
 }
 
 /// Mapbox Terrain-RGB: 0.1 m steps from −10 000 m.
