@@ -1,21 +1,23 @@
 //! Greedy insertion (Garland & Heckbert's "Greedy Insertion" TIN, as in
 //! delatin), constrained and nested so that Chunked LOD can morph exactly.
 //!
-//! A chunk's TIN is built in four steps, each of which only inserts points:
+//! A chunk's TIN ([`super::tin`]) is built in four steps, each of which only
+//! adds points:
 //!
 //! 1. Start from the parent's triangles inside the footprint with *every*
-//!    parent edge a constraint (spade's CDT), so whatever is inserted later
-//!    stays inside a parent triangle: the child refines the parent and its
-//!    morph to the parent surface is exact everywhere (DESIGN.md, promise 3).
-//!    The top level starts from its four corners.
-//! 2. Refine each border line in 1-D from that line's own samples: split the
-//!    worst interval at its worst sample until every valid sample on the line
-//!    is within δ, after forcing the line's midpoint (the corner of the
-//!    children). Neighbours see the same inherited vertices and the same
-//!    samples, so they arrive at the same border without talking.
-//! 3. Add the dividing lines (the children's borders) as constraints,
-//!    splitting the parent edges they cross at points that take the parent
-//!    surface height, and refine them in 1-D like the borders.
+//!    parent edge fixed (never flipped), so whatever is inserted later stays
+//!    inside a parent triangle: the child refines the parent and its morph to
+//!    the parent surface is exact everywhere (DESIGN.md, promise 3). The top
+//!    level starts from its four corners.
+//! 2. Cut the triangles along the dividing lines (the children's borders),
+//!    at points on the crossed edges that take the parent surface height;
+//!    the pieces of the lines are fixed edges. Where a line crosses the
+//!    border it forces the border's midpoint (the children's corner).
+//! 3. Refine each border line, then each dividing line, in 1-D from that
+//!    line's own samples: split the worst interval at its worst sample until
+//!    every valid sample on the line is within δ. Neighbours see the same
+//!    inherited vertices and the same samples, so they arrive at the same
+//!    border without talking.
 //! 4. Insert the interior sample with the largest error until every valid
 //!    sample is within δ (samples on the lines of steps 2–3 never move).
 //!
@@ -23,11 +25,11 @@
 //! margin that covers the f32 rounding of the written chunk-local positions.
 
 use std::cmp::Ordering;
-use std::collections::BinaryHeap;
+use std::collections::{BinaryHeap, HashMap};
 
-use spade::handles::FixedFaceHandle;
-use spade::{ConstrainedDelaunayTriangulation, HasPosition, Point2, Triangulation};
+use robust::Coord;
 
+use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex};
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
@@ -59,25 +61,6 @@ impl Grid<'_> {
     }
 }
 
-#[derive(Clone, Copy, Debug)]
-struct V {
-    p: Point2<f64>,
-    h: f64,
-    /// Height of the parent's surface here (= `h` at the top level): the
-    /// parent surface is linear inside every face (faces refine parent
-    /// triangles), so a new vertex takes it by interpolating its face's.
-    ph: f64,
-}
-
-impl HasPosition for V {
-    type Scalar = f64;
-    fn position(&self) -> Point2<f64> {
-        self.p
-    }
-}
-
-type Cdt = ConstrainedDelaunayTriangulation<V>;
-
 /// Most vertices one u16-indexed primitive may hold (65 535 is primitive restart).
 pub const MAX_VERTICES: usize = 65_535;
 
@@ -103,71 +86,49 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let relief = footprint_relief(grid, spec.footprint);
     let target = build_target(spec.delta_m, relief);
-    let mut cdt = initial_cdt(grid, spec);
     let nested = spec.parent.is_some();
-    let profile_src: Vec<[V; 3]> = cdt.inner_faces().map(|f| f.vertices().map(|v| *v.data())).collect();
-
-    // Step 2: borders, with their midpoints forced.
     let (mx, mz) = match spec.dividing_lines {
         true => (midpoint((x0, x1)), midpoint((z0, z1))),
         false => (None, None),
     };
-    for (axis_x, coord, span, forced) in
-        [(false, z0, (x0, x1), mx), (false, z1, (x0, x1), mx), (true, x0, (z0, z1), mz), (true, x1, (z0, z1), mz)]
-    {
-        refine_line(&mut cdt, grid, axis_x, coord, span, forced, target, nested);
-    }
 
-    // Step 3: the dividing lines.
-    let handle_at =
-        |cdt: &Cdt, x: u32, z: u32| cdt.locate_vertex(Point2::new(f64::from(x), f64::from(z))).map(|v| v.fix());
-    if let (Some(mx), Some(mz)) = (mx, mz) {
-        insert_sample(&mut cdt, grid, mx, mz, nested);
+    // Steps 1 and 3a: the parent's triangles, cut along the dividing lines.
+    let mut tin = initial_tin(grid, spec, mx, mz);
+
+    // Steps 2 and 3b: borders, then dividing lines, refined in 1-D.
+    for (vertical, coord, span) in
+        [(false, z0, (x0, x1)), (false, z1, (x0, x1)), (true, x0, (z0, z1)), (true, x1, (z0, z1))]
+    {
+        refine_line(&mut tin, grid, vertical, coord, span, target, nested);
     }
     if let Some(mx) = mx {
-        let ends = [Some(z0), mz, Some(z1)];
-        add_dividing_line(&mut cdt, grid, &profile_src, true, mx, &ends, handle_at);
+        refine_line(&mut tin, grid, true, mx, (z0, z1), target, nested);
     }
     if let Some(mz) = mz {
-        let ends = [Some(x0), mx, Some(x1)];
-        add_dividing_line(&mut cdt, grid, &profile_src, false, mz, &ends, handle_at);
+        refine_line(&mut tin, grid, false, mz, (x0, x1), target, nested);
     }
-    if let Some(mx) = mx {
-        refine_line(&mut cdt, grid, true, mx, (z0, z1), mz, target, nested);
-    }
-    if let Some(mz) = mz {
-        refine_line(&mut cdt, grid, false, mz, (x0, x1), mx, target, nested);
-    }
+    tin.take_dirty();
 
     // Step 4: greedy insertion of interior samples.
-    let mut lines = Lines::new(&cdt, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
+    let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
     let clip = spec.footprint;
     let mut heap = BinaryHeap::new();
-    let faces: Vec<_> = cdt.inner_faces().map(|f| f.fix()).collect();
-    for f in faces {
-        push_face(&mut heap, grid, &lines, clip, &cdt, f, target);
+    for t in 0..tin.num_triangles() as u32 {
+        push_triangle(&mut heap, grid, &lines, clip, &tin, t, target);
     }
     while let Some(c) = heap.pop() {
-        // A face is its vertex set: spade may move a triangle to another
-        // face slot, so look it up by its vertices rather than its index.
-        let Some(face) = find_face(&cdt, c.verts) else {
-            continue; // stale: the triangle no longer exists
-        };
+        if tin.version(c.t) != c.version {
+            continue; // stale: the triangle was rewritten and queued again
+        }
         if lines.is_vertex(c.i, c.j) {
             // The sample became a vertex of the next triangle over (it sat on
-            // this face's edge within rounding): rescan this face without it.
-            push_face(&mut heap, grid, &lines, clip, &cdt, face, target);
+            // this triangle's edge within rounding): rescan without it.
+            push_triangle(&mut heap, grid, &lines, clip, &tin, c.t, target);
             continue;
         }
-        let hint = spade::handles::FixedVertexHandle::from_index(c.verts[0] as usize);
-        let touched = insert_interior(&mut cdt, grid, c.j, c.i, hint, nested);
+        insert_interior(&mut tin, grid, c.t, c.j, c.i, nested);
         lines.mark_vertex(c.i, c.j);
-        if let Some(same) = find_face(&cdt, c.verts) {
-            // Rounding put the sample just across this face's edge, into the
-            // neighbour: this face is unchanged, so scan it again.
-            push_face(&mut heap, grid, &lines, clip, &cdt, same, target);
-        }
-        if cdt.num_vertices() > spec.max_vertices {
+        if tin.pts.len() > spec.max_vertices {
             let k = spec.key;
             return Err(MeshError::TooDense {
                 level: k.level,
@@ -177,17 +138,17 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
                 limit: spec.max_vertices,
             });
         }
-        let mut faces: Vec<FixedFaceHandle<_>> = touched
-            .iter()
-            .flat_map(|&v| cdt.vertex(v).out_edges().filter_map(|e| e.face().as_inner().map(|f| f.fix())))
-            .collect();
-        faces.sort_unstable();
-        faces.dedup();
-        for f in faces {
-            push_face(&mut heap, grid, &lines, clip, &cdt, f, target);
+        let dirty = tin.take_dirty();
+        if dirty.binary_search(&c.t).is_err() {
+            // Rounding put the sample just across this triangle's edge, into
+            // the neighbour: this one is unchanged, so scan it again.
+            push_triangle(&mut heap, grid, &lines, clip, &tin, c.t, target);
+        }
+        for t in dirty {
+            push_triangle(&mut heap, grid, &lines, clip, &tin, t, target);
         }
     }
-    Ok(finish(grid, spec, &cdt, &lines, relief))
+    Ok(finish(grid, spec, &tin, &lines, relief))
 }
 
 /// δ minus what f32 chunk-local output can add: a relative part for the
@@ -213,229 +174,224 @@ fn footprint_relief(grid: &Grid, footprint: (Span, Span)) -> f64 {
     if hi >= lo { hi - lo } else { 0.0 }
 }
 
-fn initial_cdt(grid: &Grid, spec: &ChunkSpec) -> Cdt {
+/// Counter-clockwise triangles over a vertex list, with a fixed flag per edge.
+struct Soup {
+    pts: Vec<V>,
+    tris: Vec<[u32; 3]>,
+    fixed: Vec<[bool; 3]>,
+}
+
+/// The starting triangulation: the parent's triangles inside the footprint
+/// with every parent edge fixed (the top level: its four corners), cut along
+/// the dividing lines, whose pieces are fixed too.
+fn initial_tin(grid: &Grid, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> Tin {
     let ((x0, x1), (z0, z1)) = spec.footprint;
-    let inside =
-        |v: &MeshVertex| v.x >= f64::from(x0) && v.x <= f64::from(x1) && v.z >= f64::from(z0) && v.z <= f64::from(z1);
-    let (verts, edges) = match spec.parent {
+    let mut soup = match spec.parent {
         Some(p) => {
+            let inside = |v: &MeshVertex| {
+                v.x >= f64::from(x0) && v.x <= f64::from(x1) && v.z >= f64::from(z0) && v.z <= f64::from(z1)
+            };
             let mut remap = vec![u32::MAX; p.vertices.len()];
-            let mut verts = Vec::new();
+            let mut pts = Vec::new();
             for (k, v) in p.vertices.iter().enumerate() {
                 if inside(v) {
-                    remap[k] = verts.len() as u32;
-                    verts.push(V { p: Point2::new(v.x, v.z), h: v.h, ph: v.h });
+                    remap[k] = pts.len() as u32;
+                    pts.push(V { x: v.x, z: v.z, h: v.h, ph: v.h });
                 }
             }
-            let mut edges = Vec::new();
-            for t in &p.triangles {
-                let r = t.map(|k| remap[k as usize]);
-                if r.contains(&u32::MAX) {
-                    continue;
-                }
-                for e in 0..3 {
-                    let (a, b) = (r[e], r[(e + 1) % 3]);
-                    edges.push([a.min(b) as usize, a.max(b) as usize]);
-                }
-            }
-            edges.sort_unstable();
-            edges.dedup();
-            (verts, edges)
+            // Stored clockwise in grid space (see `finish`): turn them back.
+            let tris: Vec<[u32; 3]> = p
+                .triangles
+                .iter()
+                .map(|t| [remap[t[0] as usize], remap[t[2] as usize], remap[t[1] as usize]])
+                .filter(|t| !t.contains(&u32::MAX))
+                .collect();
+            let fixed = vec![[true; 3]; tris.len()];
+            Soup { pts, tris, fixed }
         }
         None => {
             let c = |j: u32, i: u32| {
                 let h = grid.vertex_height(i as usize, j as usize);
-                V { p: Point2::new(f64::from(j), f64::from(i)), h, ph: h }
+                V { x: f64::from(j), z: f64::from(i), h, ph: h }
             };
-            (vec![c(x0, z0), c(x1, z0), c(x1, z1), c(x0, z1)], vec![[0, 1], [1, 2], [2, 3], [0, 3]])
-        }
-    };
-    Cdt::bulk_load_cdt(verts, edges).expect("footprint vertices are finite")
-}
-
-fn insert_sample(cdt: &mut Cdt, grid: &Grid, j: u32, i: u32, nested: bool) -> spade::handles::FixedVertexHandle {
-    let p = Point2::new(f64::from(j), f64::from(i));
-    let h = grid.vertex_height(i as usize, j as usize);
-    let ph = match cdt.locate(p) {
-        spade::PositionInTriangulation::OnVertex(v) => return v,
-        pos if nested => parent_height_at(cdt, pos, p),
-        _ => h,
-    };
-    cdt.insert(V { p, h, ph }).expect("sample positions are finite")
-}
-
-/// The parent surface's height at `p`, interpolated in the face (or along
-/// the edge) that `pos` says holds it.
-fn parent_height_at(cdt: &Cdt, pos: spade::PositionInTriangulation, p: Point2<f64>) -> f64 {
-    let lerp_edge = |a: &V, b: &V| {
-        let (dx, dz) = (b.p.x - a.p.x, b.p.y - a.p.y);
-        let t = (((p.x - a.p.x) * dx + (p.y - a.p.y) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
-        a.ph + t * (b.ph - a.ph)
-    };
-    match pos {
-        spade::PositionInTriangulation::OnVertex(v) => cdt.vertex(v).data().ph,
-        spade::PositionInTriangulation::OnEdge(e) => {
-            let e = cdt.directed_edge(e);
-            lerp_edge(e.from().data(), e.to().data())
-        }
-        spade::PositionInTriangulation::OnFace(f) => {
-            let [a, b, c] = cdt.face(f).vertices().map(|v| *v.data());
-            let det = (b.p.x - a.p.x) * (c.p.y - a.p.y) - (c.p.x - a.p.x) * (b.p.y - a.p.y);
-            if det.abs() < 1e-300 {
-                return a.ph;
+            Soup {
+                pts: vec![c(x0, z0), c(x1, z0), c(x1, z1), c(x0, z1)],
+                tris: vec![[0, 1, 2], [0, 2, 3]],
+                fixed: vec![[false; 3]; 2],
             }
-            let l1 = ((p.x - a.p.x) * (c.p.y - a.p.y) - (c.p.x - a.p.x) * (p.y - a.p.y)) / det;
-            let l2 = ((b.p.x - a.p.x) * (p.y - a.p.y) - (p.x - a.p.x) * (b.p.y - a.p.y)) / det;
-            (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph
         }
-        _ => f64::NAN,
+    };
+    let nested = spec.parent.is_some();
+    if let Some(mx) = mx {
+        cut_along_line(&mut soup, grid, true, mx, nested);
     }
-}
-
-/// Inserts an interior sample. A sample can lie exactly on a constraint edge
-/// whose end is a split point (not exactly representable): spade then sees it
-/// a hair off the edge and would leave a zero-width sliver, making the surface
-/// two-valued along that edge. Such an edge is split at the sample instead.
-///
-/// Returns the vertices whose surrounding faces may have changed (the new
-/// one first).
-fn insert_interior(
-    cdt: &mut Cdt,
-    grid: &Grid,
-    j: u32,
-    i: u32,
-    hint: spade::handles::FixedVertexHandle,
-    nested: bool,
-) -> Vec<spade::handles::FixedVertexHandle> {
-    let p = Point2::new(f64::from(j), f64::from(i));
-    let h = grid.vertex_height(i as usize, j as usize);
-    let pos = cdt.locate_with_hint(p, hint);
-    let ph = if nested { parent_height_at(cdt, pos, p) } else { h };
-    if let spade::PositionInTriangulation::OnFace(f) = pos {
-        let mut on_edge = None;
-        for e in cdt.face(f).adjacent_edges() {
-            if !e.is_constraint_edge() {
-                continue;
-            }
-            let [a, b] = e.vertices().map(|v| v.position());
-            let (dx, dz) = (b.x - a.x, b.y - a.y);
-            let len2 = dx * dx + dz * dz;
-            let cross = dx * (p.y - a.y) - dz * (p.x - a.x);
-            let along = (dx * (p.x - a.x) + dz * (p.y - a.y)) / len2;
-            if cross.abs() <= 1e-7 * len2.sqrt() && along > 0.0 && along < 1.0 {
-                on_edge = Some((e.as_undirected().fix(), e.from().fix(), e.to().fix()));
-            }
-        }
-        if let Some((edge, a, b)) = on_edge {
-            cdt.remove_constraint_edge(edge);
-            let v = cdt.insert_with_hint(V { p, h, ph }, a).expect("sample positions are finite");
-            cdt.add_constraint(a, v);
-            cdt.add_constraint(v, b);
-            return vec![v, a, b];
-        }
+    if let Some(mz) = mz {
+        cut_along_line(&mut soup, grid, false, mz, nested);
     }
-    vec![cdt.insert_with_hint(V { p, h, ph }, hint).expect("sample positions are finite")]
+    Tin::from_soup(soup.pts, &soup.tris, &soup.fixed)
 }
 
-/// Adds one dividing line (vertical when `vertical`, at `coord`) through the
-/// given stops, splitting crossed constraint edges at the parent surface.
-fn add_dividing_line(
-    cdt: &mut Cdt,
-    grid: &Grid,
-    parent_tris: &[[V; 3]],
-    vertical: bool,
-    coord: u32,
-    stops: &[Option<u32>; 3],
-    handle_at: impl Fn(&Cdt, u32, u32) -> Option<spade::handles::FixedVertexHandle>,
-) {
+/// Cuts every triangle the line `x = coord` (`vertical`) or `z = coord`
+/// crosses, at points on the crossed edges that take the parent surface's
+/// height (or the sample's, where a crossing falls on a sample), so that the
+/// line becomes a chain of fixed edges. A crossing shared by two triangles is
+/// computed once.
+fn cut_along_line(soup: &mut Soup, grid: &Grid, vertical: bool, coord: u32, nested: bool) {
     let c = f64::from(coord);
-    let stops: Vec<u32> = stops.iter().flatten().copied().collect();
-    let at = |t: u32| if vertical { (coord, t) } else { (t, coord) };
-    for w in stops.windows(2) {
-        let (a, b) = (at(w[0]), at(w[1]));
-        let (Some(ha), Some(hb)) = (handle_at(cdt, a.0, a.1), handle_at(cdt, b.0, b.1)) else {
-            continue;
-        };
-        cdt.add_constraint_and_split(ha, hb, |p| {
-            let mut t = if vertical { p.y } else { p.x };
-            let ph = surface_on_line(parent_tris, vertical, c, t);
+    let across = |v: &V| if vertical { v.x } else { v.z };
+    let along = |v: &V| if vertical { v.z } else { v.x };
+    let side = |v: &V| across(v).total_cmp(&c) as i8;
+    let mut cuts: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut cut = |pts: &mut Vec<V>, a: u32, b: u32| -> u32 {
+        let key = (a.min(b), a.max(b));
+        *cuts.entry(key).or_insert_with(|| {
+            let (p, q) = (pts[key.0 as usize], pts[key.1 as usize]);
+            let s = (c - across(&p)) / (across(&q) - across(&p));
+            let mut t = along(&p) + s * (along(&q) - along(&p));
+            let ph = p.ph + s * (q.ph - p.ph);
             let mut h = ph;
-            // A crossing that falls on a sample takes the sample itself, so
-            // the line's own samples decide the line wherever they can.
+            // A crossing that falls on a sample takes the sample itself (its
+            // fill over nodata), so the line's own samples decide the line
+            // wherever they can, and a border crossing (always on a sample)
+            // is the same vertex the neighbour across that border makes.
             if (t - t.round()).abs() < 1e-6 {
                 t = t.round();
                 let (j, i) = if vertical { (coord, t as u32) } else { (t as u32, coord) };
-                let s = grid.sample(i as usize, j as usize);
-                if !s.is_nan() {
-                    h = f64::from(s);
+                h = grid.vertex_height(i as usize, j as usize);
+            }
+            let (x, z) = if vertical { (c, t) } else { (t, c) };
+            pts.push(V { x, z, h, ph: if nested { ph } else { h } });
+            (pts.len() - 1) as u32
+        })
+    };
+    let mut tris = Vec::with_capacity(soup.tris.len() + soup.tris.len() / 8);
+    let mut fixed = Vec::with_capacity(tris.capacity());
+    for (&t, &f) in soup.tris.iter().zip(&soup.fixed) {
+        let s = t.map(|v| side(&soup.pts[v as usize]));
+        let crosses = |k: usize| s[k] * s[(k + 1) % 3] < 0;
+        if let Some(k) = (0..3).find(|&k| crosses(k) && crosses((k + 2) % 3)) {
+            // Corner k alone on its side: cut edges k and k + 2.
+            let (a, b, cc) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            let (fab, fbc, fca) = (f[k], f[(k + 1) % 3], f[(k + 2) % 3]);
+            let p = cut(&mut soup.pts, a, b);
+            let q = cut(&mut soup.pts, cc, a);
+            tris.push([a, p, q]);
+            fixed.push([fab, true, fca]);
+            // The quadrilateral p, b, c, q: the Delaunay diagonal.
+            let pos = |v: u32| {
+                let v = &soup.pts[v as usize];
+                Coord { x: v.x, y: v.z }
+            };
+            if robust::incircle(pos(p), pos(b), pos(cc), pos(q)) > 0.0 {
+                tris.extend([[p, b, q], [b, cc, q]]);
+                fixed.extend([[fab, false, true], [fbc, fca, false]]);
+            } else {
+                tris.extend([[p, b, cc], [p, cc, q]]);
+                fixed.extend([[fab, fbc, false], [false, fca, true]]);
+            }
+        } else if let Some(k) = (0..3).find(|&k| s[k] == 0 && crosses((k + 1) % 3)) {
+            // Through corner k and across the opposite edge.
+            let (a, b, cc) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            let (fab, fbc, fca) = (f[k], f[(k + 1) % 3], f[(k + 2) % 3]);
+            let p = cut(&mut soup.pts, b, cc);
+            tris.extend([[a, b, p], [a, p, cc]]);
+            fixed.extend([[fab, fbc, true], [true, fbc, fca]]);
+        } else {
+            // Not crossed; an edge lying on the line becomes fixed.
+            let on = |k: usize| s[k] == 0 && s[(k + 1) % 3] == 0;
+            tris.push(t);
+            fixed.push([f[0] || on(0), f[1] || on(1), f[2] || on(2)]);
+        }
+    }
+    soup.tris = tris;
+    soup.fixed = fixed;
+}
+
+/// Inserts interior sample (i, j), queued from triangle `t`. A sample within
+/// rounding of a fixed edge whose end is a cut point (not exactly
+/// representable) splits that edge instead of leaving a zero-width sliver
+/// beside it, which would make the surface two-valued along the edge.
+fn insert_interior(tin: &mut Tin, grid: &Grid, t: u32, j: u32, i: u32, nested: bool) {
+    let p = Coord { x: f64::from(j), y: f64::from(i) };
+    let h = grid.vertex_height(i as usize, j as usize);
+    match tin.locate_from(t, p) {
+        Position::Face(f) => {
+            let near = (0..3).map(|k| 3 * f + k).find(|&e| {
+                if !tin.is_fixed(e) {
+                    return false;
+                }
+                let (a, b) = tin.ends(e);
+                let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
+                let (dx, dz) = (b.x - a.x, b.z - a.z);
+                let len2 = dx * dx + dz * dz;
+                let cross = dx * (p.y - a.z) - dz * (p.x - a.x);
+                let along = (dx * (p.x - a.x) + dz * (p.y - a.z)) / len2;
+                cross.abs() <= 1e-7 * len2.sqrt() && along > 0.0 && along < 1.0
+            });
+            match near {
+                Some(e) => {
+                    let ph = if nested { parent_height_on_edge(tin, e, p) } else { h };
+                    let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
+                    tin.split_edge(e, v);
+                }
+                None => {
+                    let ph = if nested { parent_height_in(tin, f, p) } else { h };
+                    let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
+                    tin.split_triangle(f, v);
                 }
             }
-            let p = if vertical { Point2::new(c, t) } else { Point2::new(t, c) };
-            V { p, h, ph }
-        });
+        }
+        Position::Edge(e) => {
+            let ph = if nested { parent_height_on_edge(tin, e, p) } else { h };
+            let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
+            tin.split_edge(e, v);
+        }
+        Position::Vertex(_) | Position::Outside => {}
     }
 }
 
-/// Height of the triangulated surface `tris` at the point of the line
-/// (`x = c` when `vertical`, else `z = c`) with coordinate `t` along it.
-fn surface_on_line(tris: &[[V; 3]], vertical: bool, c: f64, t: f64) -> f64 {
-    let (u, w) = if vertical { (c, t) } else { (t, c) };
-    let mut best = (f64::INFINITY, 0.0);
-    for tri in tris {
-        let [a, b, d] = tri.map(|v| (v.p.x, v.p.y, v.h));
-        let det = (b.0 - a.0) * (d.1 - a.1) - (d.0 - a.0) * (b.1 - a.1);
-        if det.abs() < 1e-300 {
-            continue;
-        }
-        let l1 = ((u - a.0) * (d.1 - a.1) - (d.0 - a.0) * (w - a.1)) / det;
-        let l2 = ((b.0 - a.0) * (w - a.1) - (u - a.0) * (b.1 - a.1)) / det;
-        let l0 = 1.0 - l1 - l2;
-        let outside = (-l0).max(-l1).max(-l2).max(0.0);
-        if outside < best.0 {
-            best = (outside, l0 * a.2 + l1 * b.2 + l2 * d.2);
-            if outside == 0.0 {
-                break;
-            }
-        }
+/// The parent surface's height at `p` in triangle `t` (linear there, as every
+/// triangle refines a parent triangle).
+fn parent_height_in(tin: &Tin, t: u32, p: Coord<f64>) -> f64 {
+    let [a, b, c] = tin.corners(t);
+    let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
+    if det.abs() < 1e-300 {
+        return a.ph;
     }
-    best.1
+    let l1 = ((p.x - a.x) * (c.z - a.z) - (c.x - a.x) * (p.y - a.z)) / det;
+    let l2 = ((b.x - a.x) * (p.y - a.z) - (p.x - a.x) * (b.z - a.z)) / det;
+    (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph
+}
+
+/// The parent surface's height at `p` on (or next to) half-edge `e`.
+fn parent_height_on_edge(tin: &Tin, e: u32, p: Coord<f64>) -> f64 {
+    let (a, b) = tin.ends(e);
+    let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
+    let (dx, dz) = (b.x - a.x, b.z - a.z);
+    let s = (((p.x - a.x) * dx + (p.y - a.z) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
+    a.ph + s * (b.ph - a.ph)
 }
 
 /// 1-D greedy refinement of the line `x = coord` (`vertical`) or `z = coord`
-/// over `span`: force `forced`, then split every interval at its worst valid
+/// over `span`, a chain of edges: split every interval at its worst valid
 /// sample until all are within `target`.
-#[allow(clippy::too_many_arguments)]
-fn refine_line(
-    cdt: &mut Cdt,
-    grid: &Grid,
-    vertical: bool,
-    coord: u32,
-    span: Span,
-    forced: Option<u32>,
-    target: f64,
-    nested: bool,
-) {
+fn refine_line(tin: &mut Tin, grid: &Grid, vertical: bool, coord: u32, span: Span, target: f64, nested: bool) {
     let c = f64::from(coord);
     let (lo, hi) = (f64::from(span.0), f64::from(span.1));
-    let mut pts: Vec<(f64, f64)> = cdt
-        .vertices()
-        .map(|v| *v.data())
-        .filter_map(|v| {
-            let (along, across) = if vertical { (v.p.y, v.p.x) } else { (v.p.x, v.p.y) };
-            (across == c && along >= lo && along <= hi).then_some((along, v.h))
+    let mut pts: Vec<(f64, u32)> = tin
+        .pts
+        .iter()
+        .enumerate()
+        .filter_map(|(k, v)| {
+            let (along, across) = if vertical { (v.z, v.x) } else { (v.x, v.z) };
+            (across == c && along >= lo && along <= hi).then_some((along, k as u32))
         })
         .collect();
-    let sample = |t: u32| if vertical { (coord, t) } else { (t, coord) };
-    if let Some(f) = forced
-        && !pts.iter().any(|p| p.0 == f64::from(f))
-    {
-        let (j, i) = sample(f);
-        insert_sample(cdt, grid, j, i, nested);
-        pts.push((f64::from(f), grid.vertex_height(i as usize, j as usize)));
-    }
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut stack: Vec<((f64, f64), (f64, f64))> = pts.windows(2).map(|w| (w[0], w[1])).collect();
+    let sample = |t: u32| if vertical { (coord, t) } else { (t, coord) };
+    let mut stack: Vec<((f64, u32), (f64, u32))> = pts.windows(2).map(|w| (w[0], w[1])).collect();
     while let Some((a, b)) = stack.pop() {
+        let (ha, hb) = (tin.pts[a.1 as usize].h, tin.pts[b.1 as usize].h);
         let first = (a.0 + 1e-9).ceil() as i64;
         let last = (b.0 - 1e-9).floor() as i64;
         let mut worst: Option<(f64, u32, f64)> = None;
@@ -447,18 +403,24 @@ fn refine_line(
             }
             let h = f64::from(h);
             let s = (t as f64 - a.0) / (b.0 - a.0);
-            let err = (h - (a.1 + s * (b.1 - a.1))).abs();
+            let err = (h - (ha + s * (hb - ha))).abs();
             if err > target && worst.is_none_or(|w| err > w.0) {
                 worst = Some((err, t as u32, h));
             }
         }
-        if let Some((_, t, h)) = worst {
-            let (j, i) = sample(t);
-            insert_sample(cdt, grid, j, i, nested);
-            let m = (f64::from(t), h);
-            stack.push((a, m));
-            stack.push((m, b));
-        }
+        let Some((_, t, h)) = worst else { continue };
+        let Some(e) = tin.find_edge(a.1, b.1) else {
+            unreachable!("a line is a chain of edges");
+        };
+        let s = (f64::from(t) - a.0) / (b.0 - a.0);
+        let (pa, pb) = (tin.pts[a.1 as usize].ph, tin.pts[b.1 as usize].ph);
+        let ph = if nested { pa + s * (pb - pa) } else { h };
+        let (j, i) = sample(t);
+        let v = tin.add_vertex(V { x: f64::from(j), z: f64::from(i), h, ph });
+        tin.split_edge(e, v);
+        let m = (f64::from(t), v);
+        stack.push((a, m));
+        stack.push((m, b));
     }
 }
 
@@ -476,14 +438,13 @@ struct Lines {
 }
 
 impl Lines {
-    fn new(cdt: &Cdt, footprint: (Span, Span), xs: [Option<u32>; 3], zs: [Option<u32>; 3]) -> Self {
+    fn new(tin: &Tin, footprint: (Span, Span), xs: [Option<u32>; 3], zs: [Option<u32>; 3]) -> Self {
         let ((x0, x1), (z0, z1)) = footprint;
         let width = (x1 - x0 + 1) as usize;
         let mut l = Lines { xs, zs, origin: (x0, z0), width, vertex: vec![false; width * (z1 - z0 + 1) as usize] };
-        for v in cdt.vertices() {
-            let p = v.data().p;
-            if p.x.fract() == 0.0 && p.y.fract() == 0.0 {
-                l.mark_vertex(p.y as u32, p.x as u32);
+        for p in &tin.pts {
+            if p.x.fract() == 0.0 && p.z.fract() == 0.0 {
+                l.mark_vertex(p.z as u32, p.x as u32);
             }
         }
         l
@@ -508,7 +469,8 @@ impl Lines {
 
 struct Candidate {
     err: f64,
-    verts: [u32; 3],
+    t: u32,
+    version: u32,
     i: u32,
     j: u32,
 }
@@ -531,18 +493,18 @@ impl Ord for Candidate {
     }
 }
 
-fn push_face(
+/// Queues triangle `t`'s worst sample that step 4 may insert, if it is
+/// beyond `target`.
+fn push_triangle(
     heap: &mut BinaryHeap<Candidate>,
     grid: &Grid,
     lines: &Lines,
     clip: (Span, Span),
-    cdt: &Cdt,
-    face: FixedFaceHandle<spade::handles::InnerTag>,
+    tin: &Tin,
+    t: u32,
     target: f64,
 ) {
-    let f = cdt.face(face);
-    let tri = f.vertices().map(|v| *v.data());
-    let verts = face_key(cdt, face);
+    let tri = tin.corners(t);
     let mut worst: Option<(f64, u32, u32)> = None;
     scan_triangle(grid, clip, &tri, |i, j, err| {
         if err > target
@@ -555,25 +517,8 @@ fn push_face(
         }
     });
     if let Some((err, i, j)) = worst {
-        heap.push(Candidate { err, verts, i, j });
+        heap.push(Candidate { err, t, version: tin.version(t), i, j });
     }
-}
-
-/// A face's vertex indices, sorted: spade may rotate a face's starting edge
-/// without changing the triangle, so only the set identifies it.
-fn face_key(cdt: &Cdt, face: FixedFaceHandle<spade::handles::InnerTag>) -> [u32; 3] {
-    let mut k = cdt.face(face).vertices().map(|v| v.fix().index() as u32);
-    k.sort_unstable();
-    k
-}
-
-/// The inner face with exactly these (sorted) vertices, if it exists.
-fn find_face(cdt: &Cdt, key: [u32; 3]) -> Option<FixedFaceHandle<spade::handles::InnerTag>> {
-    let v = spade::handles::FixedVertexHandle::from_index(key[0] as usize);
-    if key[0] as usize >= cdt.num_vertices() {
-        return None;
-    }
-    cdt.vertex(v).out_edges().filter_map(|e| e.face().as_inner()).map(|f| f.fix()).find(|&f| face_key(cdt, f) == key)
 }
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
@@ -585,7 +530,7 @@ fn scan_triangle(
     tri: &[V; 3],
     mut visit: impl FnMut(u32, u32, f64),
 ) -> Option<Coverage> {
-    let [a, b, c] = tri.map(|v| (v.p.x, v.p.y, v.h));
+    let [a, b, c] = tri.map(|v| (v.x, v.z, v.h));
     let det = (b.0 - a.0) * (c.1 - a.1) - (c.0 - a.0) * (b.1 - a.1);
     if det.abs() < 1e-12 {
         return None;
@@ -658,23 +603,21 @@ enum Coverage {
 
 /// Whether any corner of the grid cell under the triangle's centroid holds data.
 fn cell_has_data(grid: &Grid, tri: &[V; 3]) -> bool {
-    let cx = (tri[0].p.x + tri[1].p.x + tri[2].p.x) / 3.0;
-    let cz = (tri[0].p.y + tri[1].p.y + tri[2].p.y) / 3.0;
+    let cx = (tri[0].x + tri[1].x + tri[2].x) / 3.0;
+    let cz = (tri[0].z + tri[1].z + tri[2].z) / 3.0;
     let j = (cx.floor().max(0.0) as usize).min(grid.width - 2);
     let i = (cz.floor().max(0.0) as usize).min(grid.height - 2);
     [(i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)].iter().any(|&(i, j)| !grid.sample(i, j).is_nan())
 }
 
-fn finish(grid: &Grid, spec: &ChunkSpec, cdt: &Cdt, lines: &Lines, relief_m: f64) -> ChunkMesh {
-    let vertices: Vec<MeshVertex> = cdt
-        .vertices()
-        .map(|v| MeshVertex { x: v.data().p.x, z: v.data().p.y, h: v.data().h, ph: v.data().ph })
-        .collect();
-    let mut triangles = Vec::with_capacity(cdt.num_inner_faces());
-    let mut kept = Vec::with_capacity(cdt.num_inner_faces());
+fn finish(grid: &Grid, spec: &ChunkSpec, tin: &Tin, lines: &Lines, relief_m: f64) -> ChunkMesh {
+    let vertices: Vec<MeshVertex> = tin.pts.iter().map(|v| MeshVertex { x: v.x, z: v.z, h: v.h, ph: v.ph }).collect();
+    let n = tin.num_triangles();
+    let mut triangles = Vec::with_capacity(n);
+    let mut kept = Vec::with_capacity(n);
     let mut max_err: f64 = 0.0;
-    for f in cdt.inner_faces() {
-        let tri = f.vertices().map(|v| *v.data());
+    for t in 0..n as u32 {
+        let tri = tin.corners(t);
         // Vertices are exact; skipping them keeps a sliver's neighbour from
         // reporting a phantom error there (see `Lines`).
         let any = scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
@@ -682,9 +625,9 @@ fn finish(grid: &Grid, spec: &ChunkSpec, cdt: &Cdt, lines: &Lines, relief_m: f64
                 max_err = max_err.max(e);
             }
         });
-        // spade's faces are counter-clockwise with y up; in x-east, z-south
-        // grid space that is clockwise, so store them reversed.
-        let [a, b, c] = f.vertices().map(|v| v.fix().index() as u32);
+        // Counter-clockwise with z taken as up is clockwise in x-east,
+        // z-south grid space: store them reversed.
+        let [a, b, c] = tin.triangle(t);
         triangles.push([a, c, b]);
         // A zero-area sliver, or a small triangle with no sample inside,
         // covers nothing by itself: keep it unless its cell is all nodata.

@@ -5,6 +5,7 @@
 pub mod check;
 pub mod decimate;
 pub mod skirt;
+pub mod tin;
 
 use crate::quadtree::{ChunkKey, Span};
 

@@ -1,0 +1,431 @@
+//! A triangulation that only grows, for greedy insertion inside a parent.
+//!
+//! Half-edges in flat arrays (delaunator's layout): triangle `t` owns
+//! half-edges `3t`, `3t + 1`, `3t + 2`, counter-clockwise in (x, z) taken as a
+//! right-handed plane. It is built directly from a triangle soup (the
+//! parent's triangles), so a child costs nothing to set up beyond its parent's
+//! triangles, and it only ever splits triangles and edges, then flips the
+//! edges that are not fixed back to local Delaunay (Lawson). Fixed edges are
+//! the parent's edges and the dividing lines: they are never flipped, so
+//! whatever is inserted stays inside a parent triangle.
+//!
+//! Orientation and in-circle decisions use Shewchuk's exact predicates
+//! (`robust`), so a point on an edge is on it, not a hair to one side.
+//!
+//! spade's constrained triangulation did this job first; it can only be
+//! seeded by re-triangulating the parent's points and edges (a quarter of the
+//! build went there) and its handles move between slots, which cost a lookup
+//! by vertex set per queued candidate. Here a triangle slot carries a version
+//! number instead.
+
+use robust::{Coord, incircle, orient2d};
+
+/// No half-edge: the twin of a border half-edge.
+pub const NONE: u32 = u32::MAX;
+
+/// A vertex: grid position (column `x`, row `z`), its height and the parent
+/// surface's height at that position.
+#[derive(Clone, Copy, Debug)]
+pub struct V {
+    /// Column coordinate (east), in samples.
+    pub x: f64,
+    /// Row coordinate (south), in samples.
+    pub z: f64,
+    /// Height, metres.
+    pub h: f64,
+    /// Parent surface height here, metres.
+    pub ph: f64,
+}
+
+/// Where a point lies relative to the triangulation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Position {
+    /// Strictly inside a triangle.
+    Face(u32),
+    /// On a half-edge, strictly between its ends.
+    Edge(u32),
+    /// On a vertex.
+    Vertex(u32),
+    /// Outside every triangle.
+    Outside,
+}
+
+/// The triangulation.
+pub struct Tin {
+    /// Vertices, in insertion order (inherited ones first).
+    pub pts: Vec<V>,
+    /// Origin vertex of each half-edge.
+    tv: Vec<u32>,
+    /// Opposite half-edge, or [`NONE`] on the border.
+    twin: Vec<u32>,
+    /// Whether the edge may not be flipped (same on both half-edges).
+    fixed: Vec<bool>,
+    /// Per triangle, bumped each time the slot is rewritten.
+    version: Vec<u32>,
+    /// One half-edge leaving each vertex.
+    out: Vec<u32>,
+    /// Triangles rewritten since the last [`Tin::take_dirty`].
+    dirty: Vec<u32>,
+}
+
+#[inline]
+fn next(e: u32) -> u32 {
+    if e % 3 == 2 { e - 2 } else { e + 1 }
+}
+
+#[inline]
+fn prev(e: u32) -> u32 {
+    if e.is_multiple_of(3) { e + 2 } else { e - 1 }
+}
+
+impl Tin {
+    /// Builds the half-edge structure from counter-clockwise triangles over
+    /// `pts`, with a fixed flag per triangle edge (edge `k` runs from corner
+    /// `k` to corner `k + 1`). Edges used once are the border.
+    pub fn from_soup(pts: Vec<V>, tris: &[[u32; 3]], fixed: &[[bool; 3]]) -> Tin {
+        let n = tris.len() * 3;
+        let mut tin = Tin {
+            out: vec![NONE; pts.len()],
+            pts,
+            tv: Vec::with_capacity(n * 2),
+            twin: vec![NONE; n],
+            fixed: Vec::with_capacity(n * 2),
+            version: vec![0; tris.len()],
+            dirty: Vec::new(),
+        };
+        for (t, f) in tris.iter().zip(fixed) {
+            for k in 0..3 {
+                tin.out[t[k] as usize] = tin.tv.len() as u32;
+                tin.tv.push(t[k]);
+                tin.fixed.push(f[k]);
+            }
+        }
+        let mut keys: Vec<(u64, u32)> = (0..n as u32)
+            .map(|e| {
+                let (a, b) = (u64::from(tin.tv[e as usize]), u64::from(tin.tv[next(e) as usize]));
+                (a.min(b) << 32 | a.max(b), e)
+            })
+            .collect();
+        keys.sort_unstable();
+        for w in keys.windows(2) {
+            if w[0].0 == w[1].0 {
+                let (a, b) = (w[0].1 as usize, w[1].1 as usize);
+                tin.twin[a] = b as u32;
+                tin.twin[b] = a as u32;
+                let f = tin.fixed[a] || tin.fixed[b];
+                tin.fixed[a] = f;
+                tin.fixed[b] = f;
+            }
+        }
+        tin
+    }
+
+    /// Number of triangles.
+    pub fn num_triangles(&self) -> usize {
+        self.version.len()
+    }
+
+    /// Corners of triangle `t`, counter-clockwise.
+    #[inline]
+    pub fn triangle(&self, t: u32) -> [u32; 3] {
+        let e = 3 * t as usize;
+        [self.tv[e], self.tv[e + 1], self.tv[e + 2]]
+    }
+
+    /// Corners of triangle `t` as vertices.
+    #[inline]
+    pub fn corners(&self, t: u32) -> [V; 3] {
+        self.triangle(t).map(|v| self.pts[v as usize])
+    }
+
+    /// How many times triangle `t` has been rewritten.
+    #[inline]
+    pub fn version(&self, t: u32) -> u32 {
+        self.version[t as usize]
+    }
+
+    /// The triangles rewritten since the last call, sorted, each once.
+    pub fn take_dirty(&mut self) -> Vec<u32> {
+        let mut d = std::mem::take(&mut self.dirty);
+        d.sort_unstable();
+        d.dedup();
+        d
+    }
+
+    /// Adds a vertex (not yet connected).
+    pub fn add_vertex(&mut self, v: V) -> u32 {
+        self.pts.push(v);
+        self.out.push(NONE);
+        (self.pts.len() - 1) as u32
+    }
+
+    /// Origin and destination of half-edge `e`.
+    #[inline]
+    pub fn ends(&self, e: u32) -> (u32, u32) {
+        (self.tv[e as usize], self.tv[next(e) as usize])
+    }
+
+    /// Whether the edge of half-edge `e` is fixed.
+    #[inline]
+    pub fn is_fixed(&self, e: u32) -> bool {
+        self.fixed[e as usize]
+    }
+
+    #[inline]
+    fn coord(&self, v: u32) -> Coord<f64> {
+        let p = &self.pts[v as usize];
+        Coord { x: p.x, y: p.z }
+    }
+
+    /// The half-edge from `a` to `b`, or from `b` to `a`, if that edge exists.
+    pub fn find_edge(&self, a: u32, b: u32) -> Option<u32> {
+        self.half_edge(a, b).or_else(|| self.half_edge(b, a))
+    }
+
+    /// The half-edge from `a` to `b`, if it exists.
+    fn half_edge(&self, a: u32, b: u32) -> Option<u32> {
+        let start = self.out[a as usize];
+        if start == NONE {
+            return None;
+        }
+        // Clockwise around `a` until the border, then counter-clockwise.
+        let mut e = start;
+        loop {
+            if self.tv[next(e) as usize] == b {
+                return Some(e);
+            }
+            let t = self.twin[prev(e) as usize];
+            if t == NONE {
+                break;
+            }
+            e = t;
+            if e == start {
+                return None;
+            }
+        }
+        let mut e = start;
+        loop {
+            let t = self.twin[e as usize];
+            if t == NONE {
+                return None;
+            }
+            e = next(t);
+            if e == start {
+                return None;
+            }
+            if self.tv[next(e) as usize] == b {
+                return Some(e);
+            }
+        }
+    }
+
+    /// Writes triangle `t` with its corners, the twins of its three edges and
+    /// their fixed flags, linking the twins back.
+    fn set(&mut self, t: u32, v: [u32; 3], twins: [u32; 3], fixed: [bool; 3]) {
+        for k in 0..3 {
+            let e = 3 * t + k as u32;
+            self.tv[e as usize] = v[k];
+            self.twin[e as usize] = twins[k];
+            self.fixed[e as usize] = fixed[k];
+            if twins[k] != NONE {
+                self.twin[twins[k] as usize] = e;
+            }
+            self.out[v[k] as usize] = e;
+        }
+        self.version[t as usize] = self.version[t as usize].wrapping_add(1);
+        self.dirty.push(t);
+    }
+
+    fn new_triangle(&mut self) -> u32 {
+        let t = self.version.len() as u32;
+        self.tv.extend([NONE; 3]);
+        self.twin.extend([NONE; 3]);
+        self.fixed.extend([false; 3]);
+        self.version.push(0);
+        t
+    }
+
+    /// Splits triangle `t` at vertex `v`, which lies strictly inside it.
+    pub fn split_triangle(&mut self, t: u32, v: u32) {
+        let [a, b, c] = self.triangle(t);
+        let e = 3 * t as usize;
+        let tw = [self.twin[e], self.twin[e + 1], self.twin[e + 2]];
+        let fx = [self.fixed[e], self.fixed[e + 1], self.fixed[e + 2]];
+        let t1 = self.new_triangle();
+        let t2 = self.new_triangle();
+        self.set(t, [a, b, v], [tw[0], 3 * t1 + 2, 3 * t2 + 1], [fx[0], false, false]);
+        self.set(t1, [b, c, v], [tw[1], 3 * t2 + 2, 3 * t + 1], [fx[1], false, false]);
+        self.set(t2, [c, a, v], [tw[2], 3 * t + 2, 3 * t1 + 1], [fx[2], false, false]);
+        self.legalize(&[3 * t, 3 * t1, 3 * t2]);
+    }
+
+    /// Splits the edge of half-edge `e` at vertex `v`, which lies on it (or
+    /// within rounding of it); the halves keep the edge's fixed flag.
+    pub fn split_edge(&mut self, e: u32, v: u32) {
+        let t = e / 3;
+        let (e1, e2) = (next(e), prev(e));
+        let (a, b, c) = (self.tv[e as usize], self.tv[e1 as usize], self.tv[e2 as usize]);
+        let fe = self.fixed[e as usize];
+        let (t_1, f_1) = (self.twin[e1 as usize], self.fixed[e1 as usize]);
+        let (t_2, f_2) = (self.twin[e2 as usize], self.fixed[e2 as usize]);
+        let f = self.twin[e as usize];
+        let t1 = self.new_triangle();
+        if f == NONE {
+            self.set(t, [a, v, c], [NONE, 3 * t1 + 2, t_2], [fe, false, f_2]);
+            self.set(t1, [v, b, c], [NONE, t_1, 3 * t + 1], [fe, f_1, false]);
+            self.legalize(&[3 * t + 2, 3 * t1 + 1]);
+            return;
+        }
+        let u = f / 3;
+        let (f1, f2) = (next(f), prev(f));
+        let d = self.tv[f2 as usize];
+        let (u_1, g_1) = (self.twin[f1 as usize], self.fixed[f1 as usize]);
+        let (u_2, g_2) = (self.twin[f2 as usize], self.fixed[f2 as usize]);
+        let u1 = self.new_triangle();
+        self.set(t, [a, v, c], [3 * u1, 3 * t1 + 2, t_2], [fe, false, f_2]);
+        self.set(t1, [v, b, c], [3 * u, t_1, 3 * t + 1], [fe, f_1, false]);
+        self.set(u, [b, v, d], [3 * t1, 3 * u1 + 2, u_2], [fe, false, g_2]);
+        self.set(u1, [v, a, d], [3 * t, u_1, 3 * u + 1], [fe, g_1, false]);
+        self.legalize(&[3 * t + 2, 3 * t1 + 1, 3 * u + 2, 3 * u1 + 1]);
+    }
+
+    /// Lawson flips from the given half-edges, each opposite the vertex just
+    /// inserted: an edge that is not fixed is flipped while the far corner
+    /// lies strictly inside the near triangle's circumcircle.
+    fn legalize(&mut self, edges: &[u32]) {
+        let mut stack: Vec<u32> = edges.to_vec();
+        while let Some(a) = stack.pop() {
+            let b = self.twin[a as usize];
+            if b == NONE || self.fixed[a as usize] {
+                continue;
+            }
+            let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
+            let (pr, pl, p0) = (self.tv[a as usize], self.tv[an as usize], self.tv[ap as usize]);
+            let p1 = self.tv[bp as usize];
+            if incircle(self.coord(pr), self.coord(pl), self.coord(p0), self.coord(p1)) <= 0.0 {
+                continue;
+            }
+            let (t, u) = (a / 3, b / 3);
+            let tw = [self.twin[an as usize], self.twin[ap as usize], self.twin[bn as usize], self.twin[bp as usize]];
+            let fx =
+                [self.fixed[an as usize], self.fixed[ap as usize], self.fixed[bn as usize], self.fixed[bp as usize]];
+            self.set(t, [p0, pr, p1], [tw[1], tw[2], 3 * u + 2], [fx[1], fx[2], false]);
+            self.set(u, [p1, pl, p0], [tw[3], tw[0], 3 * t + 2], [fx[3], fx[0], false]);
+            stack.push(3 * t + 1);
+            stack.push(3 * u);
+        }
+    }
+
+    /// Where `p` lies relative to triangle `t`: `Ok` inside or on it, else
+    /// `Err` with a half-edge of `t` that `p` is strictly beyond.
+    pub fn classify(&self, t: u32, p: Coord<f64>) -> Result<Position, u32> {
+        let e = 3 * t;
+        let v = self.triangle(t);
+        let o = [0, 1, 2].map(|k| orient2d(self.coord(v[k]), self.coord(v[(k + 1) % 3]), p));
+        if let Some(k) = (0..3).find(|&k| o[k] < 0.0) {
+            return Err(e + k as u32);
+        }
+        match (0..3).filter(|&k| o[k] == 0.0).collect::<Vec<_>>()[..] {
+            [] => Ok(Position::Face(t)),
+            [k] => Ok(Position::Edge(e + k as u32)),
+            [k, l] => {
+                // On two edges: their common corner.
+                let corner = if (k + 1) % 3 == l { v[l] } else { v[k] };
+                Ok(Position::Vertex(corner))
+            }
+            _ => Err(e), // a zero-area triangle: look elsewhere
+        }
+    }
+
+    /// Locates `p`, walking from triangle `t` (a few steps when `p` is in or
+    /// next to it), falling back to trying every triangle.
+    pub fn locate_from(&self, mut t: u32, p: Coord<f64>) -> Position {
+        for _ in 0..64 {
+            match self.classify(t, p) {
+                Ok(pos) => return pos,
+                Err(e) => match self.twin[e as usize] {
+                    NONE => break,
+                    f => t = f / 3,
+                },
+            }
+        }
+        self.locate(p)
+    }
+
+    /// Locates `p` by trying every triangle.
+    pub fn locate(&self, p: Coord<f64>) -> Position {
+        (0..self.num_triangles() as u32).find_map(|t| self.classify(t, p).ok()).unwrap_or(Position::Outside)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, z: f64) -> V {
+        V { x, z, h: 0.0, ph: 0.0 }
+    }
+
+    fn square() -> Tin {
+        let pts = vec![v(0.0, 0.0), v(4.0, 0.0), v(4.0, 4.0), v(0.0, 4.0)];
+        Tin::from_soup(pts, &[[0, 1, 2], [0, 2, 3]], &[[false; 3]; 2])
+    }
+
+    fn check(tin: &Tin) {
+        for t in 0..tin.num_triangles() as u32 {
+            let [a, b, c] = tin.triangle(t);
+            assert!(orient2d(tin.coord(a), tin.coord(b), tin.coord(c)) > 0.0, "triangle {t} not counter-clockwise");
+            for k in 0..3 {
+                let e = 3 * t + k;
+                let f = tin.twin[e as usize];
+                if f != NONE {
+                    assert_eq!(tin.twin[f as usize], e);
+                    assert_eq!(tin.ends(e), (tin.ends(f).1, tin.ends(f).0));
+                    assert_eq!(tin.fixed[e as usize], tin.fixed[f as usize]);
+                }
+            }
+        }
+        for (k, &e) in tin.out.iter().enumerate() {
+            assert_eq!(tin.tv[e as usize], k as u32, "vertex {k} lost its out edge");
+        }
+    }
+
+    #[test]
+    fn splits_keep_a_valid_counter_clockwise_mesh_and_find_edges() {
+        let mut tin = square();
+        check(&tin);
+        let c = tin.add_vertex(v(1.0, 2.5));
+        let Position::Face(t) = tin.locate(Coord { x: 1.0, y: 2.5 }) else { panic!("inside") };
+        tin.split_triangle(t, c);
+        check(&tin);
+        assert_eq!(tin.num_triangles(), 4);
+        // A border point: on the edge from (4, 0) to (4, 4).
+        let e = tin.find_edge(1, 2).expect("border edge");
+        let m = tin.add_vertex(v(4.0, 2.0));
+        tin.split_edge(e, m);
+        check(&tin);
+        assert_eq!(tin.num_triangles(), 5);
+        assert!(tin.find_edge(1, m).is_some() && tin.find_edge(m, 2).is_some() && tin.find_edge(1, 2).is_none());
+        assert_eq!(tin.locate(Coord { x: 4.0, y: 2.0 }), Position::Vertex(m));
+        assert_eq!(tin.locate(Coord { x: 5.0, y: 2.0 }), Position::Outside);
+    }
+
+    #[test]
+    fn fixed_edges_are_never_flipped() {
+        // The diagonal (0, 2) is fixed; a point next to it would flip it if free.
+        let pts = vec![v(0.0, 0.0), v(4.0, 0.0), v(4.0, 4.0), v(0.0, 4.0)];
+        let mut tin = Tin::from_soup(pts, &[[0, 1, 2], [0, 2, 3]], &[[false, false, true], [true, false, false]]);
+        let p = Coord { x: 2.2, y: 1.8 };
+        let c = tin.add_vertex(v(p.x, p.y));
+        let Position::Face(t) = tin.locate(p) else { panic!("inside") };
+        tin.split_triangle(t, c);
+        check(&tin);
+        assert!(tin.find_edge(0, 2).is_some());
+        let mut free = square();
+        let c = free.add_vertex(v(p.x, p.y));
+        let Position::Face(t) = free.locate(p) else { panic!("inside") };
+        free.split_triangle(t, c);
+        check(&free);
+        assert!(free.find_edge(0, 2).is_none(), "an unfixed diagonal is flipped to Delaunay");
+    }
+}
