@@ -61,6 +61,47 @@ impl Grid<'_> {
     }
 }
 
+/// A chunk's footprint copied out of the grid into rows of its own: scanning
+/// a window of a large grid strides a page or more per row, a compact copy
+/// stays in cache. Indexed by grid (row, column), like [`Grid`].
+struct Window<'a> {
+    grid: &'a Grid<'a>,
+    x0: usize,
+    z0: usize,
+    width: usize,
+    heights: Vec<f32>,
+}
+
+impl<'a> Window<'a> {
+    fn new(grid: &'a Grid<'a>, footprint: (Span, Span)) -> Self {
+        let ((x0, x1), (z0, z1)) = footprint;
+        let (x0, x1, z0, z1) = (x0 as usize, x1 as usize, z0 as usize, z1 as usize);
+        let mut heights = Vec::with_capacity((x1 - x0 + 1) * (z1 - z0 + 1));
+        for i in z0..=z1 {
+            heights.extend_from_slice(&grid.heights[i * grid.width + x0..=i * grid.width + x1]);
+        }
+        Window { grid, x0, z0, width: x1 - x0 + 1, heights }
+    }
+
+    #[inline]
+    fn sample(&self, i: usize, j: usize) -> f32 {
+        self.heights[(i - self.z0) * self.width + (j - self.x0)]
+    }
+
+    /// Height a vertex at sample (i, j) takes: the sample, or the fill.
+    #[inline]
+    fn vertex_height(&self, i: usize, j: usize) -> f64 {
+        let h = self.sample(i, j);
+        if h.is_nan() { self.grid.vertex_height(i, j) } else { f64::from(h) }
+    }
+
+    /// Row `i` from column `x0` on.
+    #[inline]
+    fn row(&self, i: usize) -> &[f32] {
+        &self.heights[(i - self.z0) * self.width..(i - self.z0 + 1) * self.width]
+    }
+}
+
 /// Most vertices one u16-indexed primitive may hold (65 535 is primitive restart).
 pub const MAX_VERTICES: usize = 65_535;
 
@@ -84,6 +125,8 @@ pub struct ChunkSpec<'p> {
 /// Builds one chunk's TIN (see the module comment for the four steps).
 pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError> {
     let ((x0, x1), (z0, z1)) = spec.footprint;
+    let window = Window::new(grid, spec.footprint);
+    let grid = &window;
     let relief = footprint_relief(grid, spec.footprint);
     let target = build_target(spec.delta_m, relief);
     let nested = spec.parent.is_some();
@@ -111,19 +154,18 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
 
     // Step 4: greedy insertion of interior samples.
     let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
-    let clip = spec.footprint;
-    let mut heap = BinaryHeap::new();
+    let mut queue = Queue { grid, clip: spec.footprint, target, heap: BinaryHeap::new(), scans: Vec::new() };
     for t in 0..tin.num_triangles() as u32 {
-        push_triangle(&mut heap, grid, &lines, clip, &tin, t, target);
+        queue.push(&tin, &lines, t);
     }
-    while let Some(c) = heap.pop() {
+    while let Some(c) = queue.heap.pop() {
         if tin.version(c.t) != c.version {
             continue; // stale: the triangle was rewritten and queued again
         }
         if lines.is_vertex(c.i, c.j) {
             // The sample became a vertex of the next triangle over (it sat on
             // this triangle's edge within rounding): rescan without it.
-            push_triangle(&mut heap, grid, &lines, clip, &tin, c.t, target);
+            queue.push(&tin, &lines, c.t);
             continue;
         }
         insert_interior(&mut tin, grid, c.t, c.j, c.i, nested);
@@ -142,13 +184,13 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         if dirty.binary_search(&c.t).is_err() {
             // Rounding put the sample just across this triangle's edge, into
             // the neighbour: this one is unchanged, so scan it again.
-            push_triangle(&mut heap, grid, &lines, clip, &tin, c.t, target);
+            queue.push(&tin, &lines, c.t);
         }
         for t in dirty {
-            push_triangle(&mut heap, grid, &lines, clip, &tin, t, target);
+            queue.push(&tin, &lines, t);
         }
     }
-    Ok(finish(grid, spec, &tin, &lines, relief))
+    Ok(finish(grid, spec, &tin, &lines, &queue.scans, relief))
 }
 
 /// δ minus what f32 chunk-local output can add: a relative part for the
@@ -158,7 +200,7 @@ pub fn build_target(delta_m: f64, relief_m: f64) -> f64 {
 }
 
 /// Largest minus smallest valid height in a footprint (0 if none).
-fn footprint_relief(grid: &Grid, footprint: (Span, Span)) -> f64 {
+fn footprint_relief(grid: &Window, footprint: (Span, Span)) -> f64 {
     let ((x0, x1), (z0, z1)) = footprint;
     let mut lo = f64::INFINITY;
     let mut hi = f64::NEG_INFINITY;
@@ -184,7 +226,7 @@ struct Soup {
 /// The starting triangulation: the parent's triangles inside the footprint
 /// with every parent edge fixed (the top level: its four corners), cut along
 /// the dividing lines, whose pieces are fixed too.
-fn initial_tin(grid: &Grid, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> Tin {
+fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> Tin {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let mut soup = match spec.parent {
         Some(p) => {
@@ -236,7 +278,7 @@ fn initial_tin(grid: &Grid, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) 
 /// height (or the sample's, where a crossing falls on a sample), so that the
 /// line becomes a chain of fixed edges. A crossing shared by two triangles is
 /// computed once.
-fn cut_along_line(soup: &mut Soup, grid: &Grid, vertical: bool, coord: u32, nested: bool) {
+fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, nested: bool) {
     let c = f64::from(coord);
     let across = |v: &V| if vertical { v.x } else { v.z };
     let along = |v: &V| if vertical { v.z } else { v.x };
@@ -311,7 +353,7 @@ fn cut_along_line(soup: &mut Soup, grid: &Grid, vertical: bool, coord: u32, nest
 /// rounding of a fixed edge whose end is a cut point (not exactly
 /// representable) splits that edge instead of leaving a zero-width sliver
 /// beside it, which would make the surface two-valued along the edge.
-fn insert_interior(tin: &mut Tin, grid: &Grid, t: u32, j: u32, i: u32, nested: bool) {
+fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested: bool) {
     let p = Coord { x: f64::from(j), y: f64::from(i) };
     let h = grid.vertex_height(i as usize, j as usize);
     match tin.locate_from(t, p) {
@@ -375,7 +417,7 @@ fn parent_height_on_edge(tin: &Tin, e: u32, p: Coord<f64>) -> f64 {
 /// 1-D greedy refinement of the line `x = coord` (`vertical`) or `z = coord`
 /// over `span`, a chain of edges: split every interval at its worst valid
 /// sample until all are within `target`.
-fn refine_line(tin: &mut Tin, grid: &Grid, vertical: bool, coord: u32, span: Span, target: f64, nested: bool) {
+fn refine_line(tin: &mut Tin, grid: &Window, vertical: bool, coord: u32, span: Span, target: f64, nested: bool) {
     let c = f64::from(coord);
     let (lo, hi) = (f64::from(span.0), f64::from(span.1));
     let mut pts: Vec<(f64, u32)> = tin
@@ -493,31 +535,55 @@ impl Ord for Candidate {
     }
 }
 
-/// Queues triangle `t`'s worst sample that step 4 may insert, if it is
-/// beyond `target`.
-fn push_triangle(
-    heap: &mut BinaryHeap<Candidate>,
-    grid: &Grid,
-    lines: &Lines,
+/// What the last scan of a triangle found.
+#[derive(Clone, Copy)]
+struct Scan {
+    /// The triangle's version when scanned.
+    version: u32,
+    /// Largest error over its valid samples that are not vertices.
+    max_err: f64,
+    /// What it covers (None: zero area).
+    coverage: Option<Coverage>,
+}
+
+/// Step 4's queue: each triangle's worst sample beyond the target.
+struct Queue<'g> {
+    grid: &'g Window<'g>,
     clip: (Span, Span),
-    tin: &Tin,
-    t: u32,
     target: f64,
-) {
-    let tri = tin.corners(t);
-    let mut worst: Option<(f64, u32, u32)> = None;
-    scan_triangle(grid, clip, &tri, |i, j, err| {
-        if err > target
-            && worst.is_none_or(|w| err > w.0)
-            && !lines.row_is_line(i)
-            && !lines.col_is_line(j)
-            && !lines.is_vertex(i, j)
-        {
-            worst = Some((err, i, j));
+    heap: BinaryHeap<Candidate>,
+    scans: Vec<Scan>,
+}
+
+impl Queue<'_> {
+    /// Scans triangle `t`, records what it found, and queues its worst
+    /// sample that step 4 may insert, if that is beyond the target.
+    fn push(&mut self, tin: &Tin, lines: &Lines, t: u32) {
+        let tri = tin.corners(t);
+        let mut worst: Option<(f64, u32, u32)> = None;
+        let mut max_err = 0.0;
+        let target = self.target;
+        let coverage = scan_triangle(self.grid, self.clip, &tri, |i, j, err| {
+            if err > max_err && !lines.is_vertex(i, j) {
+                max_err = err;
+            }
+            if err > target
+                && worst.is_none_or(|w| err > w.0)
+                && !lines.row_is_line(i)
+                && !lines.col_is_line(j)
+                && !lines.is_vertex(i, j)
+            {
+                worst = Some((err, i, j));
+            }
+        });
+        let version = tin.version(t);
+        if self.scans.len() <= t as usize {
+            self.scans.resize(t as usize + 1, Scan { version: u32::MAX, max_err: 0.0, coverage: None });
         }
-    });
-    if let Some((err, i, j)) = worst {
-        heap.push(Candidate { err, t, version: tin.version(t), i, j });
+        self.scans[t as usize] = Scan { version, max_err, coverage };
+        if let Some((err, i, j)) = worst {
+            self.heap.push(Candidate { err, t, version, i, j });
+        }
     }
 }
 
@@ -525,7 +591,7 @@ fn push_triangle(
 /// triangle `tri` (clipped to `clip`); returns whether any valid sample was
 /// what it covers, or `None` for a zero-area triangle (which is not scanned).
 fn scan_triangle(
-    grid: &Grid,
+    grid: &Window,
     clip: (Span, Span),
     tri: &[V; 3],
     mut visit: impl FnMut(u32, u32, f64),
@@ -541,40 +607,31 @@ fn scan_triangle(
     const EPS: f64 = 1e-7;
     let zmin = a.1.min(b.1).min(c.1).max(f64::from(clip.1.0));
     let zmax = a.1.max(b.1).max(c.1).min(f64::from(clip.1.1));
-    let first = (zmin - EPS).ceil() as i64;
-    let last = (zmax + EPS).floor() as i64;
+    let first = ceil(zmin - EPS);
+    let last = floor(zmax + EPS);
     let mut any = false;
     let mut seen = false;
-    let edges = [(a, b), (b, c), (c, a)];
+    // Corners by row: p on top, r at the bottom; the long edge p–r spans
+    // every row, the short edges p–q and q–r one part each.
+    let mut v = [a, b, c];
+    v.sort_unstable_by(|u, w| u.1.total_cmp(&w.1));
+    let [p, q, r] = v;
+    let long = (r.0 - p.0) / (r.1 - p.1);
+    let upper = if q.1 > p.1 { (q.0 - p.0) / (q.1 - p.1) } else { 0.0 };
+    let lower = if r.1 > q.1 { (r.0 - q.0) / (r.1 - q.1) } else { 0.0 };
     for i in first..=last {
         let z = i as f64;
-        let mut xl = f64::INFINITY;
-        let mut xr = f64::NEG_INFINITY;
-        for (p, q) in edges {
-            let (lo, hi) = if p.1 <= q.1 { (p, q) } else { (q, p) };
-            if z < lo.1 - EPS || z > hi.1 + EPS {
-                continue;
-            }
-            if (hi.1 - lo.1).abs() < 1e-12 {
-                xl = xl.min(lo.0.min(hi.0));
-                xr = xr.max(lo.0.max(hi.0));
-            } else {
-                let s = ((z - lo.1) / (hi.1 - lo.1)).clamp(0.0, 1.0);
-                let x = lo.0 + s * (hi.0 - lo.0);
-                xl = xl.min(x);
-                xr = xr.max(x);
-            }
-        }
-        if xl > xr {
-            continue;
-        }
-        let j0 = ((xl - EPS).ceil().max(f64::from(clip.0.0))) as i64;
-        let j1 = ((xr + EPS).floor().min(f64::from(clip.0.1))) as i64;
-        let row = &grid.heights[i as usize * grid.width..];
+        let zc = z.max(p.1).min(r.1);
+        let x_long = p.0 + (zc - p.1) * long;
+        let x_short = if zc < q.1 { p.0 + (zc - p.1) * upper } else { q.0 + (zc - q.1) * lower };
+        let (xl, xr) = if x_long <= x_short { (x_long, x_short) } else { (x_short, x_long) };
+        let j0 = ceil(xl - EPS).max(i64::from(clip.0.0));
+        let j1 = floor(xr + EPS).min(i64::from(clip.0.1));
+        let row = &grid.row(i as usize)[..];
         let base = a.2 + gz * (z - a.1) - gx * a.0;
         for j in j0..=j1 {
             seen = true;
-            let h = row[j as usize];
+            let h = row[j as usize - grid.x0];
             if h.is_nan() {
                 continue;
             }
@@ -590,6 +647,21 @@ fn scan_triangle(
     })
 }
 
+/// `x.ceil() as i64` without the libm call (x86-64 before SSE4.1 has no
+/// rounding instruction); grid coordinates are far inside i64.
+#[inline]
+fn ceil(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) < x { t + 1 } else { t }
+}
+
+/// `x.floor() as i64`, as [`ceil`].
+#[inline]
+fn floor(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x { t - 1 } else { t }
+}
+
 /// What samples a triangle covers.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Coverage {
@@ -602,15 +674,17 @@ enum Coverage {
 }
 
 /// Whether any corner of the grid cell under the triangle's centroid holds data.
-fn cell_has_data(grid: &Grid, tri: &[V; 3]) -> bool {
+fn cell_has_data(grid: &Window, tri: &[V; 3]) -> bool {
     let cx = (tri[0].x + tri[1].x + tri[2].x) / 3.0;
     let cz = (tri[0].z + tri[1].z + tri[2].z) / 3.0;
-    let j = (cx.floor().max(0.0) as usize).min(grid.width - 2);
-    let i = (cz.floor().max(0.0) as usize).min(grid.height - 2);
+    let x1 = grid.x0 + grid.width - 1;
+    let z1 = grid.z0 + grid.heights.len() / grid.width - 1;
+    let j = (cx.floor().max(grid.x0 as f64) as usize).min(x1 - 1);
+    let i = (cz.floor().max(grid.z0 as f64) as usize).min(z1 - 1);
     [(i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)].iter().any(|&(i, j)| !grid.sample(i, j).is_nan())
 }
 
-fn finish(grid: &Grid, spec: &ChunkSpec, tin: &Tin, lines: &Lines, relief_m: f64) -> ChunkMesh {
+fn finish(grid: &Window, spec: &ChunkSpec, tin: &Tin, lines: &Lines, scans: &[Scan], relief_m: f64) -> ChunkMesh {
     let vertices: Vec<MeshVertex> = tin.pts.iter().map(|v| MeshVertex { x: v.x, z: v.z, h: v.h, ph: v.ph }).collect();
     let n = tin.num_triangles();
     let mut triangles = Vec::with_capacity(n);
@@ -618,13 +692,20 @@ fn finish(grid: &Grid, spec: &ChunkSpec, tin: &Tin, lines: &Lines, relief_m: f64
     let mut max_err: f64 = 0.0;
     for t in 0..n as u32 {
         let tri = tin.corners(t);
-        // Vertices are exact; skipping them keeps a sliver's neighbour from
-        // reporting a phantom error there (see `Lines`).
-        let any = scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
-            if !lines.is_vertex(i, j) {
-                max_err = max_err.max(e);
+        // A triangle's last scan still holds unless a corner is a cut point:
+        // then a sample within rounding outside it may since have become a
+        // vertex (of the neighbour), which is exact and must not count.
+        let any = match scans.get(t as usize) {
+            Some(s) if s.version == tin.version(t) && tri.iter().all(|v| v.x.fract() == 0.0 && v.z.fract() == 0.0) => {
+                max_err = max_err.max(s.max_err);
+                s.coverage
             }
-        });
+            _ => scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
+                if !lines.is_vertex(i, j) {
+                    max_err = max_err.max(e);
+                }
+            }),
+        };
         // Counter-clockwise with z taken as up is clockwise in x-east,
         // z-south grid space: store them reversed.
         let [a, b, c] = tin.triangle(t);

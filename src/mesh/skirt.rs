@@ -29,13 +29,21 @@ pub fn build_skirt(
     margin_m: f64,
 ) -> Part {
     let ((x0, x1), (z0, z1)) = footprint;
-    let mut edge_set = std::collections::HashSet::new();
-    for t in surface.indices.chunks_exact(3) {
-        for e in 0..3 {
-            let (a, b) = (t[e], t[(e + 1) % 3]);
-            edge_set.insert((a.min(b), a.max(b)));
-        }
-    }
+    // The drawn edges along the borders (both ends on the same border line).
+    let on_border = |a: u32, b: u32| {
+        let ((xa, za), (xb, zb)) = (grid_xz[a as usize], grid_xz[b as usize]);
+        let (fx, fz) =
+            (|x: f64| x == f64::from(x0) || x == f64::from(x1), |z: f64| z == f64::from(z0) || z == f64::from(z1));
+        (xa == xb && fx(xa)) || (za == zb && fz(za))
+    };
+    let mut edge_set: Vec<(u32, u32)> = surface
+        .indices
+        .chunks_exact(3)
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .filter(|&(a, b)| on_border(a, b))
+        .map(|(a, b)| (a.min(b), a.max(b)))
+        .collect();
+    edge_set.sort_unstable();
     let mut out = Part::default();
     // (vertical?, fixed coordinate, outward direction sign)
     let sides = [(false, z0, -1.0), (false, z1, 1.0), (true, x0, -1.0), (true, x1, 1.0)];
@@ -87,7 +95,7 @@ pub fn build_skirt(
         }
         for k in 0..on.len() - 1 {
             let (a, b) = (on[k].1, on[k + 1].1);
-            if !edge_set.contains(&(a.min(b), a.max(b))) {
+            if edge_set.binary_search(&(a.min(b), a.max(b))).is_err() {
                 continue; // that stretch of border is over nodata: no surface, no skirt
             }
             let (ta, ba, tb, bb) =
