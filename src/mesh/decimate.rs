@@ -627,7 +627,7 @@ fn scan_triangle(
         let (xl, xr) = if x_long <= x_short { (x_long, x_short) } else { (x_short, x_long) };
         let j0 = ceil(xl - EPS).max(i64::from(clip.0.0));
         let j1 = floor(xr + EPS).min(i64::from(clip.0.1));
-        let row = &grid.row(i as usize)[..];
+        let row = grid.row(i as usize);
         let base = a.2 + gz * (z - a.1) - gx * a.0;
         for j in j0..=j1 {
             seen = true;
