@@ -150,7 +150,8 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     if let Some(mz) = mz {
         refine_line(&mut tin, grid, false, mz, (x0, x1), target, nested);
     }
-    tin.take_dirty();
+    let mut dirty = Vec::new();
+    tin.take_dirty(&mut dirty);
 
     // Step 4: greedy insertion of interior samples.
     let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
@@ -180,13 +181,13 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
                 limit: spec.max_vertices,
             });
         }
-        let dirty = tin.take_dirty();
+        tin.take_dirty(&mut dirty);
         if dirty.binary_search(&c.t).is_err() {
             // Rounding put the sample just across this triangle's edge, into
             // the neighbour: this one is unchanged, so scan it again.
             queue.push(&tin, &lines, c.t);
         }
-        for t in dirty {
+        for &t in &dirty {
             queue.push(&tin, &lines, t);
         }
     }

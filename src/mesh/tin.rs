@@ -66,6 +66,8 @@ pub struct Tin {
     out: Vec<u32>,
     /// Triangles rewritten since the last [`Tin::take_dirty`].
     dirty: Vec<u32>,
+    /// Scratch for [`Tin::legalize`].
+    stack: Vec<u32>,
 }
 
 #[inline]
@@ -92,6 +94,7 @@ impl Tin {
             fixed: Vec::with_capacity(n * 2),
             version: vec![0; tris.len()],
             dirty: Vec::new(),
+            stack: Vec::new(),
         };
         for (t, f) in tris.iter().zip(fixed) {
             for k in 0..3 {
@@ -144,12 +147,13 @@ impl Tin {
         self.version[t as usize]
     }
 
-    /// The triangles rewritten since the last call, sorted, each once.
-    pub fn take_dirty(&mut self) -> Vec<u32> {
-        let mut d = std::mem::take(&mut self.dirty);
-        d.sort_unstable();
-        d.dedup();
-        d
+    /// Moves the triangles rewritten since the last call into `out`
+    /// (cleared first), sorted, each once.
+    pub fn take_dirty(&mut self, out: &mut Vec<u32>) {
+        out.clear();
+        std::mem::swap(out, &mut self.dirty);
+        out.sort_unstable();
+        out.dedup();
     }
 
     /// Adds a vertex (not yet connected).
@@ -293,7 +297,9 @@ impl Tin {
     /// inserted: an edge that is not fixed is flipped while the far corner
     /// lies strictly inside the near triangle's circumcircle.
     fn legalize(&mut self, edges: &[u32]) {
-        let mut stack: Vec<u32> = edges.to_vec();
+        let mut stack = std::mem::take(&mut self.stack);
+        stack.clear();
+        stack.extend_from_slice(edges);
         while let Some(a) = stack.pop() {
             let b = self.twin[a as usize];
             if b == NONE || self.fixed[a as usize] {
@@ -314,6 +320,7 @@ impl Tin {
             stack.push(3 * t + 1);
             stack.push(3 * u);
         }
+        self.stack = stack;
     }
 
     /// Where `p` lies relative to triangle `t`: `Ok` inside or on it, else
