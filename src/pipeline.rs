@@ -258,7 +258,7 @@ fn build_levels(
     let cfg = &opts.config;
     let timers = Timers { mesh: AtomicU64::new(0), skirt_morph: AtomicU64::new(0), write: AtomicU64::new(0) };
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
-    let ctx = GlbContext { spacing_m: hf.spacing_m, generator: &generator };
+    let ctx = GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: cfg.vertex_cache };
     let has_voids = grid.filled.is_some();
     let mut report = Report {
         samples: hf.width * hf.height,

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use terrachunk::config::Config;
+use terrachunk::config::{Config, VertexCache};
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::verify::{VerifyReport, verify};
@@ -315,6 +315,69 @@ fn each_glb_carries_the_morph_target_contract() {
         assert_eq!(t.len(), 3);
         assert!(j["nodes"][0].get("rotation").is_none() && j["nodes"][0].get("scale").is_none());
     }
+}
+
+/// One chunk's surface: its file, its triangles as corner positions (f32
+/// bits) rotated to start at the smallest (winding kept), its index list and
+/// vertex count.
+type Surface = (PathBuf, Vec<[[u32; 3]; 3]>, Vec<u32>, usize);
+
+/// Every chunk's surface, by file name.
+fn surface_triangles(out: &Path) -> Vec<Surface> {
+    let mut all = Vec::new();
+    for (path, bytes) in all_files(out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")) {
+        let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+        let prim = doc.meshes().next().unwrap().primitives().next().unwrap();
+        let r = prim.reader(|b| Some(&buffers[b.index()]));
+        let pos: Vec<[u32; 3]> = r.read_positions().unwrap().map(|p| p.map(f32::to_bits)).collect();
+        let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
+        let mut tris: Vec<[[u32; 3]; 3]> = idx
+            .chunks_exact(3)
+            .map(|t| {
+                let mut c = [pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]];
+                let k = (0..3).min_by_key(|&k| c[k]).unwrap();
+                c.rotate_left(k);
+                c
+            })
+            .collect();
+        tris.sort_unstable();
+        all.push((path, tris, idx, pos.len()));
+    }
+    all.sort_by(|a, b| a.0.cmp(&b.0));
+    all
+}
+
+#[test]
+fn vertex_cache_modes_reorder_the_same_triangles() {
+    let dem = fixture("mount_st_helens_30m.tif");
+    let built = |mode: VertexCache| {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let mut o = options(&dem, &out, 2.0, 0);
+        o.config.vertex_cache = mode;
+        build(&o).unwrap();
+        let tris = surface_triangles(&out);
+        (tmp, tris)
+    };
+    let (_a, fast) = built(VertexCache::Fast);
+    let (_b, best) = built(VertexCache::Best);
+    assert_eq!(fast.len(), best.len());
+    let acmr = |set: &[Surface]| {
+        let (mut misses, mut tris) = (0.0, 0.0);
+        for (_, _, idx, n) in set {
+            let s = meshopt::analyze_vertex_cache(idx, *n, 16, 0, 0);
+            misses += f64::from(s.acmr) * (idx.len() / 3) as f64;
+            tris += (idx.len() / 3) as f64;
+        }
+        misses / tris
+    };
+    for (f, b) in fast.iter().zip(&best) {
+        assert_eq!(f.0.file_name(), b.0.file_name());
+        assert_eq!(f.1, b.1, "{}: same triangles, same winding", f.0.display());
+    }
+    let (af, ab) = (acmr(&fast), acmr(&best));
+    assert!(ab <= af, "the table-driven order transforms no more vertices than FIFO ({ab} vs {af})");
+    assert!(af < 1.1, "even the fast order reuses cached vertices (ACMR {af})");
 }
 
 // ------------------------------------------------------------ verify bites

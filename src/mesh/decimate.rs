@@ -25,7 +25,7 @@
 //! margin that covers the f32 rounding of the written chunk-local positions.
 
 use std::cmp::Ordering;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::HashMap;
 
 use robust::Coord;
 
@@ -155,14 +155,11 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
 
     // Step 4: greedy insertion of interior samples.
     let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
-    let mut queue = Queue { grid, clip: spec.footprint, target, heap: BinaryHeap::new(), scans: Vec::new() };
+    let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
     for t in 0..tin.num_triangles() as u32 {
         queue.push(&tin, &lines, t);
     }
     while let Some(c) = queue.heap.pop() {
-        if tin.version(c.t) != c.version {
-            continue; // stale: the triangle was rewritten and queued again
-        }
         if lines.is_vertex(c.i, c.j) {
             // The sample became a vertex of the next triangle over (it sat on
             // this triangle's edge within rounding): rescan without it.
@@ -510,10 +507,10 @@ impl Lines {
     }
 }
 
+#[derive(Clone, Copy)]
 struct Candidate {
     err: f64,
     t: u32,
-    version: u32,
     i: u32,
     j: u32,
 }
@@ -552,8 +549,96 @@ struct Queue<'g> {
     grid: &'g Window<'g>,
     clip: (Span, Span),
     target: f64,
-    heap: BinaryHeap<Candidate>,
+    heap: TriHeap,
     scans: Vec<Scan>,
+}
+
+/// A max-heap of candidates holding at most one per triangle, which a rescan
+/// replaces in place: no stale entries to pop, and a heap only as large as
+/// the number of triangles still beyond the target.
+#[derive(Default)]
+struct TriHeap {
+    heap: Vec<Candidate>,
+    /// Per triangle: its entry's index in `heap`, or `u32::MAX`.
+    pos: Vec<u32>,
+}
+
+impl TriHeap {
+    /// Makes `c` triangle `t`'s entry (`None`: no entry).
+    fn set(&mut self, t: u32, c: Option<Candidate>) {
+        if self.pos.len() <= t as usize {
+            self.pos.resize(t as usize + 1, u32::MAX);
+        }
+        match (self.pos[t as usize], c) {
+            (u32::MAX, None) => {}
+            (u32::MAX, Some(c)) => {
+                self.heap.push(c);
+                self.pos[t as usize] = (self.heap.len() - 1) as u32;
+                self.up(self.heap.len() - 1);
+            }
+            (k, Some(c)) => {
+                self.heap[k as usize] = c;
+                let k = self.up(k as usize);
+                self.down(k);
+            }
+            (k, None) => self.remove(k as usize),
+        }
+    }
+
+    /// Takes the largest candidate.
+    fn pop(&mut self) -> Option<Candidate> {
+        let top = *self.heap.first()?;
+        self.remove(0);
+        Some(top)
+    }
+
+    fn remove(&mut self, k: usize) {
+        let t = self.heap[k].t;
+        let last = self.heap.pop().expect("entry exists");
+        self.pos[t as usize] = u32::MAX;
+        if k < self.heap.len() {
+            self.heap[k] = last;
+            self.pos[last.t as usize] = k as u32;
+            let k = self.up(k);
+            self.down(k);
+        }
+    }
+
+    fn swap(&mut self, a: usize, b: usize) {
+        self.heap.swap(a, b);
+        self.pos[self.heap[a].t as usize] = a as u32;
+        self.pos[self.heap[b].t as usize] = b as u32;
+    }
+
+    fn up(&mut self, mut k: usize) -> usize {
+        while k > 0 {
+            let p = (k - 1) / 2;
+            if self.heap[k] <= self.heap[p] {
+                break;
+            }
+            self.swap(k, p);
+            k = p;
+        }
+        k
+    }
+
+    fn down(&mut self, mut k: usize) {
+        loop {
+            let (l, r) = (2 * k + 1, 2 * k + 2);
+            let mut m = k;
+            if l < self.heap.len() && self.heap[l] > self.heap[m] {
+                m = l;
+            }
+            if r < self.heap.len() && self.heap[r] > self.heap[m] {
+                m = r;
+            }
+            if m == k {
+                return;
+            }
+            self.swap(k, m);
+            k = m;
+        }
+    }
 }
 
 impl Queue<'_> {
@@ -582,9 +667,7 @@ impl Queue<'_> {
             self.scans.resize(t as usize + 1, Scan { version: u32::MAX, max_err: 0.0, coverage: None });
         }
         self.scans[t as usize] = Scan { version, max_err, coverage };
-        if let Some((err, i, j)) = worst {
-            self.heap.push(Candidate { err, t, version, i, j });
-        }
+        self.heap.set(t, worst.map(|(err, i, j)| Candidate { err, t, i, j }));
     }
 }
 

@@ -11,6 +11,7 @@
 use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
+use crate::config::VertexCache;
 
 /// What the writer needs besides the chunk itself.
 pub struct GlbContext<'a> {
@@ -18,6 +19,8 @@ pub struct GlbContext<'a> {
     pub spacing_m: [f64; 2],
     /// Generator string for `asset.generator`.
     pub generator: &'a str,
+    /// Triangle order for the vertex cache.
+    pub vertex_cache: VertexCache,
 }
 
 /// The chunk-local origin: the chunk's west/north corner at its lowest point.
@@ -42,7 +45,7 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
         if part.indices.is_empty() {
             continue;
         }
-        let p = optimise(part);
+        let p = optimise(part, ctx.vertex_cache);
         let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
         let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
         let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
@@ -95,9 +98,12 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
 }
 
 /// Vertex-cache then vertex-fetch order (meshoptimizer); same triangles.
-fn optimise(p: &Part) -> Part {
+fn optimise(p: &Part, order: VertexCache) -> Part {
     let n = p.positions.len();
-    let indices = meshopt::optimize_vertex_cache(&p.indices, n);
+    let indices = match order {
+        VertexCache::Fast => meshopt::optimize_vertex_cache_fifo(&p.indices, n, 16),
+        VertexCache::Best => meshopt::optimize_vertex_cache(&p.indices, n),
+    };
     let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
     let used = remap.iter().filter(|&&r| r != u32::MAX).count();
     let mut out = Part {
