@@ -25,8 +25,9 @@ pub struct Config {
     pub spacing_m: Option<[f64; 2]>,
     /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=250
     /// (a 251 × 251 chunk at full density plus skirts still fits u16
-    /// indices). Default 200.
-    pub leaf_cells: u32,
+    /// indices). Default: unset, chosen from the data so that a leaf holds
+    /// about 4 000 vertices on average.
+    pub leaf_cells: Option<u32>,
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default "fast".
     pub vertex_cache: VertexCache,
@@ -54,7 +55,7 @@ impl Default for Config {
             threads: 0,
             vertical_scale: 1.0,
             spacing_m: None,
-            leaf_cells: 200,
+            leaf_cells: None,
             vertex_cache: VertexCache::Fast,
         }
     }
@@ -115,8 +116,10 @@ impl Config {
         {
             return bad("spacing_m", format!("{s:?}"), "must be finite metres > 0");
         }
-        if !(2..=250).contains(&self.leaf_cells) {
-            return bad("leaf_cells", self.leaf_cells.to_string(), "must be within 2..=250 cells");
+        if let Some(c) = self.leaf_cells
+            && !(2..=250).contains(&c)
+        {
+            return bad("leaf_cells", c.to_string(), "must be within 2..=250 cells");
         }
         Ok(())
     }

@@ -232,6 +232,16 @@ fn print_summary(r: &Report, out: &std::path::Path) {
         s.total,
         r.threads
     );
+    let chunks: usize = r.levels.iter().map(|l| l.chunks).sum();
+    let vertices: usize = r.levels.iter().map(|l| l.vertices).sum();
+    if chunks > 0 {
+        println!(
+            "leaves up to {} cells wide; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
+            r.leaf_cells,
+            vertices as f64 / chunks as f64,
+            r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
+        );
+    }
     if r.refine_levels > 0 {
         println!(
             "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than 65 535 vertices",

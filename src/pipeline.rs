@@ -124,6 +124,8 @@ pub struct Report {
     /// Levels added at the bottom (same footprint, half the δ) so that the
     /// coarser chunks fit u16 indices.
     pub refine_levels: u32,
+    /// Widest deepest-level chunk, in cells (set, or chosen from the data).
+    pub leaf_cells: u32,
 }
 
 /// Wall time per pipeline stage, seconds.
@@ -220,20 +222,98 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
+    let leaf_cells = match opts.config.leaf_cells {
+        Some(c) => c,
+        None => auto_leaf_cells(&grid, opts.config.max_error_m),
+    };
     let mut refine = 0;
     loop {
-        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.leaf_cells, refine);
+        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, leaf_cells, refine);
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         match build_levels(hf, &grid, &tree, opts, tmp) {
             Ok((mut report, records)) => {
                 report.refine_levels = refine;
+                report.leaf_cells = leaf_cells;
                 return Ok((report, tree, records, t_plan, t.elapsed()));
             }
             Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
             Err(e) => return Err(e),
         }
     }
+}
+
+/// Surface vertices an average chunk should hold when `leaf_cells` is left
+/// to the data: inside the 1 000–8 000 that keeps draw calls few and chunks
+/// small enough to cull and page finely.
+pub const CHUNK_VERTICES: f64 = 4000.0;
+
+/// The leaf width, in cells, whose tree has about [`CHUNK_VERTICES`]
+/// vertices per chunk on average. A level of δ holds about (valid samples ×
+/// vertices per sample at δ) vertices whatever its chunking, so the average
+/// follows from the planned tree and the density at each level's δ, measured
+/// with one greedy TIN on each of up to 4 × 4 windows of 64 × 64 cells
+/// spread over the grid.
+pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
+    let cells = 64.min(grid.width - 1).min(grid.height - 1);
+    let starts = |n: usize| {
+        let k = ((n - 1) / cells).clamp(1, 4);
+        (0..k).map(move |w| if k == 1 { 0 } else { w * (n - 1 - cells) / (k - 1) }).collect::<Vec<_>>()
+    };
+    let mut windows = Vec::new();
+    for &z in &starts(grid.height) {
+        for &x in &starts(grid.width) {
+            let valid = (z..=z + cells)
+                .map(|i| {
+                    grid.heights[i * grid.width + x..=i * grid.width + x + cells].iter().filter(|h| !h.is_nan()).count()
+                })
+                .sum::<usize>();
+            if valid > 0 {
+                windows.push(((x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32), valid));
+            }
+        }
+    }
+    let density = |delta_m: f64| {
+        let (mut vertices, mut samples) = (0usize, 0usize);
+        for &(xs, zs, valid) in &windows {
+            let spec = ChunkSpec {
+                key: ChunkKey { level: 0, x: 0, y: 0 },
+                footprint: (xs, zs),
+                delta_m,
+                parent: None,
+                max_vertices: usize::MAX,
+                dividing_lines: false,
+            };
+            if let Ok(mesh) = build_chunk(grid, &spec) {
+                vertices += mesh.vertices.len();
+                samples += valid;
+            }
+        }
+        if samples == 0 { 0.0 } else { vertices as f64 / samples as f64 }
+    };
+    let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
+    // Density by k, for δ = max_error_m · 2^k.
+    let mut by_k: Vec<Option<f64>> = vec![None; 32];
+    let mut average = |c: u32| {
+        let tree = ChunkTree::plan(grid.width, grid.height, max_error_m, c, 0);
+        let levels = tree.delta_m.len();
+        let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+        let vertices: f64 = (0..levels)
+            .map(|l| {
+                let k = (levels - 1 - l).min(31);
+                *by_k[k].get_or_insert_with(|| density(tree.delta_m[l])) * valid
+            })
+            .sum();
+        vertices / chunks as f64
+    };
+    let mut best = (f64::INFINITY, 250);
+    for c in 32..=250 {
+        let miss = (average(c) / CHUNK_VERTICES).ln().abs();
+        if miss < best.0 {
+            best = (miss, c);
+        }
+    }
+    best.1
 }
 
 struct Timers {

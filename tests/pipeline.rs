@@ -348,6 +348,20 @@ fn surface_triangles(out: &Path) -> Vec<Surface> {
 }
 
 #[test]
+fn chunks_hold_one_to_eight_thousand_vertices_on_average() {
+    // The leaf size is chosen from the data; the tree above follows from it.
+    for name in ["mount_st_helens_30m.tif", "dfw_texas_srtm3.tif", "jacksboro_fault_u16.png"] {
+        let (_t, _out, report) = build_ok(&fixture(name), 1.0);
+        let chunks: usize = report.levels.iter().map(|l| l.chunks).sum();
+        let vertices: usize = report.levels.iter().map(|l| l.vertices).sum();
+        let average = vertices as f64 / chunks as f64;
+        assert!(report.levels.len() >= 3, "{name}: a real tree, not one chunk");
+        assert!((1000.0..=8000.0).contains(&average), "{name}: {average} vertices per chunk");
+        assert!((32..=250).contains(&report.leaf_cells), "{name}: leaf_cells {}", report.leaf_cells);
+    }
+}
+
+#[test]
 fn vertex_cache_modes_reorder_the_same_triangles() {
     let dem = fixture("mount_st_helens_30m.tif");
     let built = |mode: VertexCache| {
