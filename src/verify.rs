@@ -188,23 +188,6 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     let mut tiles: BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)> = BTreeMap::new();
     check_tile(&ts["root"], None, &extras, &mut tiles, &mut report.failures, "REPLACE");
 
-    // Chunks, read in parallel.
-    let keys: Vec<ChunkKey> = tiles.keys().copied().collect();
-    let files: Vec<Result<ChunkFile, VerifyError>> =
-        keys.par_iter().map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y)))).collect();
-    let mut chunks = BTreeMap::new();
-    for (k, f) in keys.iter().zip(files) {
-        match f {
-            Ok(c) => {
-                if c.key != *k {
-                    report.failures.push(format!("chunk {}: node extras say {:?}", name(*k), c.key));
-                }
-                chunks.insert(*k, c);
-            }
-            Err(e) => report.failures.push(format!("chunk {}: {e}", name(*k))),
-        }
-    }
-
     let sources: Vec<PathBuf> = match dem_override {
         Some(d) => d.to_vec(),
         None => extras.source.iter().map(PathBuf::from).collect(),
@@ -219,18 +202,61 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
         return Ok(report);
     }
 
-    // Per chunk: error, coverage, morph.
+    // Level by level, holding only that level and its parents: chunks read
+    // in parallel, then error, coverage and morph per chunk, then borders.
+    let mut parent_of: BTreeMap<ChunkKey, ChunkKey> = BTreeMap::new();
+    for (k, (_, kids)) in &tiles {
+        for kid in kids {
+            parent_of.insert(*kid, *k);
+        }
+    }
+    let mut by_level: BTreeMap<u32, Vec<ChunkKey>> = BTreeMap::new();
+    for k in tiles.keys() {
+        by_level.entry(k.level).or_default().push(*k);
+    }
+    let mut parents: BTreeMap<ChunkKey, ChunkFile> = BTreeMap::new();
+    for keys in by_level.values() {
+        let files: Vec<Result<ChunkFile, VerifyError>> =
+            keys.par_iter().map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y)))).collect();
+        let mut chunks = BTreeMap::new();
+        for (k, f) in keys.iter().zip(files) {
+            match f {
+                Ok(c) => {
+                    if c.key != *k {
+                        report.failures.push(format!("chunk {}: node extras say {:?}", name(*k), c.key));
+                    }
+                    chunks.insert(*k, c);
+                }
+                Err(e) => report.failures.push(format!("chunk {}: {e}", name(*k))),
+            }
+        }
+        check_level(&hf, &extras, &tiles, &parent_of, &parents, &chunks, &mut report);
+        parents = chunks;
+    }
+    Ok(report)
+}
+
+/// Error, coverage and morph of every chunk of one level (against its parent
+/// in `parents`), then the borders between its same-level neighbours.
+fn check_level(
+    hf: &crate::heightfield::Heightfield,
+    extras: &TilesetExtras,
+    tiles: &BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)>,
+    parent_of: &BTreeMap<ChunkKey, ChunkKey>,
+    parents: &BTreeMap<ChunkKey, ChunkFile>,
+    chunks: &BTreeMap<ChunkKey, ChunkFile>,
+    report: &mut VerifyReport,
+) {
     let results: Vec<(ChunkKey, f64, f64, Vec<String>)> = chunks
         .par_iter()
         .map(|(k, c)| {
             let mut problems = Vec::new();
             let has_children = !tiles[k].1.is_empty();
-            let err = check_error(&hf, c, extras.spacing_m, &mut problems);
+            let err = check_error(hf, c, extras.spacing_m, &mut problems);
             if !has_children && err > extras.max_error_m {
                 problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
             }
-            let parent = tiles.iter().find(|(_, (_, kids))| kids.contains(k)).map(|(pk, _)| *pk);
-            let gap = match parent.and_then(|p| chunks.get(&p)) {
+            let gap = match parent_of.get(k).and_then(|p| parents.get(p)) {
                 Some(p) => check_morph(c, p, extras.spacing_m, &mut problems),
                 None => {
                     let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs()));
@@ -258,7 +284,7 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     }
 
     // Shared borders between same-level neighbours (east and south).
-    for (k, c) in &chunks {
+    for (k, c) in chunks {
         for (dx, dy) in [(1, 0), (0, 1)] {
             let nk = ChunkKey { level: k.level, x: k.x + dx, y: k.y + dy };
             if let Some(n) = chunks.get(&nk) {
@@ -269,7 +295,6 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
             }
         }
     }
-    Ok(report)
 }
 
 /// `L/x/y`.
