@@ -551,6 +551,16 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
     let common = |verts: Vec<[f64; 3]>| {
         let mut v: Vec<[f64; 3]> = verts.into_iter().filter(|p| drawn(p[along], &ea) && drawn(p[along], &eb)).collect();
         v.sort_by(|p, q| p[along].total_cmp(&q[along]));
+        // Distinct vertices closer than the f32 rounding (cut points where
+        // many parent edges meet a line) may come out in either order: within
+        // such a run, order by height.
+        let mut start = 0;
+        for k in 1..=v.len() {
+            if k == v.len() || v[k][along] - v[k - 1][along] > tol {
+                v[start..k].sort_by(|p, q| p[1].total_cmp(&q[1]));
+                start = k;
+            }
+        }
         v
     };
     let (ca, cb) = (common(va), common(vb));
