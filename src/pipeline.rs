@@ -335,11 +335,31 @@ fn build_levels(
     opts: &BuildOptions,
     tmp: &Path,
 ) -> Result<(Report, Vec<TileRecord>), BuildError> {
-    let cfg = &opts.config;
-    let timers = Timers { mesh: AtomicU64::new(0), skirt_morph: AtomicU64::new(0), write: AtomicU64::new(0) };
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
-    let ctx = GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: cfg.vertex_cache };
-    let has_voids = grid.filled.is_some();
+    let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+    let run = Run {
+        hf,
+        grid,
+        tree,
+        opts,
+        tmp,
+        ctx: GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: opts.config.vertex_cache },
+        timers: Timers { mesh: AtomicU64::new(0), skirt_morph: AtomicU64::new(0), write: AtomicU64::new(0) },
+        bytes: AtomicU64::new(0),
+        failed: std::sync::atomic::AtomicBool::new(false),
+        bar: progress_bar(opts.progress, planned as u64),
+    };
+    // Depth first, subtrees in parallel: a chunk's mesh lives only while its
+    // children are built, so memory holds a few root-to-leaf paths rather
+    // than whole levels.
+    let roots: Vec<ChunkKey> = tree.roots().into_iter().filter(|&k| run.worth_building(k)).collect();
+    let built: Vec<Result<Vec<BuiltChunk>, BuildError>> = roots.par_iter().map(|&k| run.subtree(k, None)).collect();
+    run.bar.finish_and_clear();
+    let mut chunks = Vec::new();
+    for b in built {
+        chunks.extend(b?);
+    }
+    chunks.sort_by_key(|c| c.record.key);
     let mut report = Report {
         samples: hf.width * hf.height,
         valid_samples: hf.valid_count(),
@@ -347,92 +367,116 @@ fn build_levels(
         spacing_m: hf.spacing_m,
         ..Report::default()
     };
-    let mut records = Vec::new();
-    let mut bytes = AtomicU64::new(0);
-    // Each level's work: groups of sibling keys with their parent's mesh,
-    // which is dropped as soon as its children are built (memory holds about
-    // one level of meshes, not two).
-    let mut work: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
-        tree.roots().into_iter().filter(|&k| !has_voids || has_valid(grid, tree, k)).map(|k| (None, vec![k])).collect();
-    while !work.is_empty() {
-        let level = work[0].1[0].level;
-        let delta = tree.delta_m[level as usize];
-        let count: usize = work.iter().map(|g| g.1.len()).sum();
-        let bar = progress_bar(opts.progress, count as u64, level, tree.depth());
-        let build_one = |key: ChunkKey, parent: Option<&ChunkMesh>| {
-            let t = Instant::now();
-            let spec = ChunkSpec {
-                key,
-                footprint: tree.footprint(key),
-                delta_m: delta,
-                parent,
-                max_vertices: MAX_VERTICES,
-                dividing_lines: tree.splits(level),
-            };
-            let mesh = build_chunk(grid, &spec)?;
-            Timers::add(&timers.mesh, t);
-            let t = Instant::now();
-            let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-            let chunk = assemble(grid, hf.spacing_m, &mesh, margin);
-            Timers::add(&timers.skirt_morph, t);
-            let t = Instant::now();
-            let glb = encode_glb(&chunk, &ctx);
-            let path = tmp.join(tile_uri(key));
-            std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
-                .and_then(|_| std::fs::write(&path, &glb))
-                .map_err(|source| BuildError::Io { path: path.clone(), source })?;
-            bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
-            Timers::add(&timers.write, t);
-            bar.inc(1);
-            let (min, max) = bounds(&chunk);
-            let figures = LevelFigures {
-                triangles: chunk.surface.triangle_count(),
-                skirt_triangles: chunk.skirt.triangle_count(),
-                vertices: chunk.surface.positions.len(),
-            };
-            // A leaf's mesh is dropped here, not kept for a level that will not need it.
-            let leaf = mesh.meets(cfg.max_error_m) || tree.children(key).is_empty();
-            let (max_error_m, relief_m) = (mesh.max_error_m, mesh.relief_m);
-            let mesh = if leaf { ChunkMesh { max_error_m, relief_m, ..ChunkMesh::empty(key) } } else { mesh };
-            Ok((mesh, leaf, figures, TileRecord { key, min, max, delta_m: delta }))
-        };
-        let results: Vec<Result<(ChunkMesh, bool, LevelFigures, TileRecord), BuildError>> = std::mem::take(&mut work)
-            .into_par_iter()
-            .flat_map_iter(|(parent, keys)| {
-                let out: Vec<_> = keys.par_iter().map(|&k| build_one(k, parent.as_ref())).collect();
-                drop(parent);
-                out
-            })
-            .collect();
-        bar.finish_and_clear();
-        let mut lr = LevelReport { level, delta_m: delta, ..LevelReport::default() };
-        let mut next = Vec::new();
-        for r in results {
-            let (mesh, leaf, figures, rec) = r?;
-            lr.chunks += 1;
-            lr.triangles += figures.triangles;
-            lr.skirt_triangles += figures.skirt_triangles;
-            lr.vertices += figures.vertices;
-            lr.max_error_m = lr.max_error_m.max(mesh.max_error_m);
-            records.push(rec);
-            let kids = if leaf { Vec::new() } else { tree.children(mesh.key) };
-            if kids.is_empty() {
-                lr.leaves += 1;
-            }
-            let kids: Vec<ChunkKey> = kids.into_iter().filter(|&c| !has_voids || has_valid(grid, tree, c)).collect();
-            if !kids.is_empty() {
-                next.push((Some(mesh), kids));
-            }
+    for c in &chunks {
+        let level = c.record.key.level;
+        if report.levels.last().is_none_or(|l| l.level != level) {
+            report.levels.push(LevelReport { level, delta_m: tree.delta_m[level as usize], ..LevelReport::default() });
         }
-        report.levels.push(lr);
-        work = next;
+        let lr = report.levels.last_mut().expect("pushed above");
+        lr.chunks += 1;
+        lr.triangles += c.figures.triangles;
+        lr.skirt_triangles += c.figures.skirt_triangles;
+        lr.vertices += c.figures.vertices;
+        lr.max_error_m = lr.max_error_m.max(c.max_error_m);
+        lr.leaves += usize::from(c.leaf);
     }
-    records.sort_by_key(|r| r.key);
-    report.bytes = *bytes.get_mut();
+    report.bytes = run.bytes.load(Ordering::Relaxed);
     let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
-    report.thread_seconds =
-        ChunkStageTimes { mesh: s(&timers.mesh), skirt_morph: s(&timers.skirt_morph), write: s(&timers.write) };
-    Ok((report, records))
+    let t = &run.timers;
+    report.thread_seconds = ChunkStageTimes { mesh: s(&t.mesh), skirt_morph: s(&t.skirt_morph), write: s(&t.write) };
+    Ok((report, chunks.into_iter().map(|c| c.record).collect()))
+}
+
+/// What one chunk adds to the report and the index.
+struct BuiltChunk {
+    record: TileRecord,
+    figures: LevelFigures,
+    max_error_m: f64,
+    /// No children: already within max_error, or at the deepest level.
+    leaf: bool,
+}
+
+/// One build's shared state.
+struct Run<'a> {
+    hf: &'a Heightfield,
+    grid: &'a Grid<'a>,
+    tree: &'a ChunkTree,
+    opts: &'a BuildOptions,
+    tmp: &'a Path,
+    ctx: GlbContext<'a>,
+    timers: Timers,
+    bytes: AtomicU64,
+    /// Set on the first error, so the other subtrees stop early.
+    failed: std::sync::atomic::AtomicBool,
+    bar: indicatif::ProgressBar,
+}
+
+impl Run<'_> {
+    /// Whether chunk `k` has any data to mesh.
+    fn worth_building(&self, k: ChunkKey) -> bool {
+        self.grid.filled.is_none() || has_valid(self.grid, self.tree, k)
+    }
+
+    /// Builds chunk `key` and everything below it.
+    fn subtree(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<Vec<BuiltChunk>, BuildError> {
+        if self.failed.load(Ordering::Relaxed) {
+            return Ok(Vec::new()); // another subtree failed: its error is returned
+        }
+        let (mesh, built) = self.chunk(key, parent).inspect_err(|_| self.failed.store(true, Ordering::Relaxed))?;
+        let kids: Vec<ChunkKey> = match built.leaf {
+            true => Vec::new(),
+            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+        };
+        let mut all = vec![built];
+        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> =
+            kids.par_iter().map(|&k| self.subtree(k, Some(&mesh))).collect();
+        drop(mesh);
+        for b in below {
+            all.extend(b?);
+        }
+        Ok(all)
+    }
+
+    /// Meshes, assembles and writes one chunk.
+    fn chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, BuiltChunk), BuildError> {
+        let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
+        let level = key.level;
+        let delta = tree.delta_m[level as usize];
+        let t = Instant::now();
+        let spec = ChunkSpec {
+            key,
+            footprint: tree.footprint(key),
+            delta_m: delta,
+            parent,
+            max_vertices: MAX_VERTICES,
+            dividing_lines: tree.splits(level),
+        };
+        let mesh = build_chunk(grid, &spec)?;
+        Timers::add(&timers.mesh, t);
+        let t = Instant::now();
+        let margin = tree.delta_m[(level as usize).saturating_sub(2)];
+        let chunk = assemble(grid, self.hf.spacing_m, &mesh, margin);
+        Timers::add(&timers.skirt_morph, t);
+        let t = Instant::now();
+        let glb = encode_glb(&chunk, &self.ctx);
+        let path = self.tmp.join(tile_uri(key));
+        std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
+            .and_then(|_| std::fs::write(&path, &glb))
+            .map_err(|source| BuildError::Io { path: path.clone(), source })?;
+        self.bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
+        Timers::add(&timers.write, t);
+        self.bar.inc(1);
+        let (min, max) = bounds(&chunk);
+        let figures = LevelFigures {
+            triangles: chunk.surface.triangle_count(),
+            skirt_triangles: chunk.skirt.triangle_count(),
+            vertices: chunk.surface.positions.len(),
+        };
+        let leaf = mesh.meets(self.opts.config.max_error_m) || tree.children(key).is_empty();
+        let max_error_m = mesh.max_error_m;
+        let built = BuiltChunk { record: TileRecord { key, min, max, delta_m: delta }, figures, max_error_m, leaf };
+        Ok((mesh, built))
+    }
 }
 
 /// What a level's summary needs from one written chunk.
@@ -525,17 +569,16 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
     }
 }
 
-fn progress_bar(enabled: bool, len: u64, level: u32, depth: u32) -> indicatif::ProgressBar {
+fn progress_bar(enabled: bool, len: u64) -> indicatif::ProgressBar {
     if !enabled {
         return indicatif::ProgressBar::hidden();
     }
     let bar = indicatif::ProgressBar::new(len);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:40}] {pos}/{len} chunks {elapsed}")
+        indicatif::ProgressStyle::with_template("[{bar:40}] {pos}/{len} chunks at most {elapsed}")
             .expect("valid template")
             .progress_chars("=> "),
     );
-    bar.set_prefix(format!("level {level}/{depth}"));
     bar
 }
 
