@@ -77,6 +77,25 @@ impl<'m> SurfaceLocator<'m> {
     }
 }
 
+impl SurfaceLocator<'_> {
+    /// Every triangle that contains (x, z) or lies within `tol` grid units of
+    /// it, with the interpolated height there: where the parent has slivers
+    /// narrower than the rounding of the files, a point cannot be placed in
+    /// one of them, and each is a fair answer.
+    pub fn candidates(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
+        let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
+        let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
+        bucket
+            .iter()
+            .filter_map(|&t| {
+                let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+                let (outside, h) = barycentric(&a, &p, &q, x, z);
+                (outside <= tol.max(1e-6)).then_some((t, h))
+            })
+            .collect()
+    }
+}
+
 /// How far outside triangle (a, b, c) the point is, in grid units (0 when
 /// inside or on it), and the linear interpolation of the heights there
 /// (extrapolated when outside).

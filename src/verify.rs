@@ -464,11 +464,17 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
         .filter(|(_, dy)| *dy != 0.0)
         .collect();
     for (v, dy) in cv.iter().copied().zip(c.surface.morph_dy.iter().copied()).chain(skirt_tops) {
-        match loc.locate(v.x, v.z, round_grid) {
-            Some((t, h)) => {
-                let g = (v.h + dy - h).abs();
+        // The parent triangle that agrees best among those the point may lie
+        // in, given the files' rounding.
+        let best = loc
+            .candidates(v.x, v.z, round_grid)
+            .into_iter()
+            .map(|(t, h)| ((v.h + dy - h).abs(), allowed(t)))
+            .min_by(|a, b| (a.0 - a.1).total_cmp(&(b.0 - b.1)));
+        match best {
+            Some((g, allowed)) => {
                 gap = gap.max(g);
-                worst_excess = worst_excess.max(g - allowed(t));
+                worst_excess = worst_excess.max(g - allowed);
             }
             None => missing += 1,
         }
