@@ -9,6 +9,7 @@ use serde_json::Value;
 use terrachunk::config::Config;
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::texture::TextureSource;
 use terrachunk::verify::{VerifyReport, verify};
 
 fn fixture(name: &str) -> PathBuf {
@@ -21,6 +22,7 @@ fn options(dem: &Path, out: &Path, max_error_m: f64, threads: usize) -> BuildOpt
         out: out.to_path_buf(),
         force: false,
         config: Config { max_error_m, threads, ..Config::default() },
+        texture: TextureSource::Generated,
         progress: false,
     }
 }
