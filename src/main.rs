@@ -221,8 +221,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     );
                 }
                 println!(
-                    "{} texture seams compared, border texels differ by up to {} (allowed {})",
-                    t.seams_checked, t.max_seam_diff, t.seam_tolerance
+                    "{} texture seams compared, border texels differ by up to {} (allowed {}), RMS {:.2} (allowed {:.2})",
+                    t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
                 );
             }
             if r.failures.is_empty() {
