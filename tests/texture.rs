@@ -320,15 +320,22 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
     let photo = tmp.path().join("photo.tif");
     write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610);
     let out = tmp.path().join("out");
-    let cfg = Config { max_error_m: 0.5, leaf_cells: 10, ..Config::default() };
+    // With a normal map from the 10 m DEM: its tiles differ in size from the
+    // 5 m photo's, so it gets its own TEXCOORD_1.
+    let cfg = Config { max_error_m: 0.5, leaf_cells: 10, normal_map: true, ..Config::default() };
     build_with(&dem, &out, cfg, TextureSource::Image(photo.clone()));
     verified(&out);
     khronos_validate(&out);
     let ex = &tileset(&out)["extras"]["terrachunk"]["texture"];
     assert_eq!(ex["placement"], "georeferenced (EPSG:32610)");
     assert_eq!(ex["source_texel_m"], serde_json::json!([5.0, 5.0]));
-    let mut checked = 0;
+    let (mut checked, mut own_uv) = (0, 0);
     for t in tiles(&out).values() {
+        if t.images[0].dimensions() != t.images[1].dimensions() {
+            own_uv += 1;
+            assert_eq!(t.json["materials"][0]["normalTexture"]["texCoord"], 1, "{:?}", t.key);
+            assert!(t.json["meshes"][0]["primitives"][0]["attributes"].get("TEXCOORD_1").is_some());
+        }
         let [x0, x1, z0, z1] = t.footprint;
         let im = &t.images[0];
         for l in 0..im.height() {
@@ -344,6 +351,7 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
         }
     }
     assert!(checked > 5000, "{checked}");
+    assert!(own_uv > 0);
 
     // Another zone, or a photo that stops short of the DEM: refused, named.
     let wrong = tmp.path().join("zone11.tif");

@@ -62,7 +62,17 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
         let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
         let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
-        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, &p.normals);
+        // With a normal map, the map carries the shading and the vertices
+        // fix its tangent frame to the map's axes (see `texture`).
+        let flat_frame = texture.is_some_and(|t| t.normal.is_some());
+        let up: Vec<[f32; 3]>;
+        let normals = if flat_frame {
+            up = vec![[0.0, 1.0, 0.0]; p.positions.len()];
+            &up
+        } else {
+            &p.normals
+        };
+        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, normals);
         let dlt = push_vec3(&mut bin, &mut views, &mut accessors, &delta);
         let idx = push_indices(&mut bin, &mut views, &mut accessors, &p.indices);
         let mut attributes = json!({"POSITION": pos, "NORMAL": nrm});
@@ -72,10 +82,6 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
             };
             attributes["TEXCOORD_0"] = push_vec2(&mut bin, &mut views, &mut accessors, &uv(&tex.colour)).into();
             if let Some(nm) = &tex.normal {
-                // The normal map carries the shading; the vertices fix its
-                // tangent frame to the map's axes (see `texture`).
-                let up = vec![[0.0f32, 1.0, 0.0]; p.positions.len()];
-                attributes["NORMAL"] = push_vec3(&mut bin, &mut views, &mut accessors, &up).into();
                 let east = vec![[1.0f32, 0.0, 0.0, 1.0]; p.positions.len()];
                 attributes["TANGENT"] = push_vec4(&mut bin, &mut views, &mut accessors, &east).into();
                 if nm.texels != tex.colour.texels {

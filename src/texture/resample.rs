@@ -57,8 +57,11 @@ fn taps(centre: f64, radius: f64, len: usize) -> Taps {
             w[(j.clamp(0, last) - first) as usize] += wt;
         }
     }
-    let sum: f64 = w.iter().sum();
-    Taps { first: first as usize, weights: w.iter().map(|&x| (x / sum) as f32).collect() }
+    // Drop zero weights at either end (a texel on a pixel centre reads one pixel).
+    let skip = w.iter().take_while(|&&x| x == 0.0).count().min(w.len() - 1);
+    let keep = w.len() - w.iter().rev().take_while(|&&x| x == 0.0).count().min(w.len() - 1 - skip);
+    let sum: f64 = w[skip..keep].iter().sum();
+    Taps { first: first as usize + skip, weights: w[skip..keep].iter().map(|&x| (x / sum) as f32).collect() }
 }
 
 /// Resamples `src` at the texel centres `xs` × `zs`; returns
@@ -115,11 +118,20 @@ pub static SRGB_TO_LINEAR: LazyLock<[f32; 256]> = LazyLock::new(|| {
     })
 });
 
-/// Linear light → sRGB byte, rounded to nearest (inverse of [`SRGB_TO_LINEAR`]).
+/// The linear values at which the sRGB byte steps up: byte `k + 1` from
+/// the value whose sRGB encoding is `(k + ½)/255`.
+static SRGB_STEPS: LazyLock<[f32; 255]> = LazyLock::new(|| {
+    std::array::from_fn(|k| {
+        let s = (k as f64 + 0.5) / 255.0;
+        (if s <= 0.04045 { s / 12.92 } else { ((s + 0.055) / 1.055).powf(2.4) }) as f32
+    })
+});
+
+/// Linear light → sRGB byte, rounded to nearest (inverse of
+/// [`SRGB_TO_LINEAR`]): a binary search of the 255 steps, not a power per
+/// value.
 pub fn linear_to_srgb(v: f32) -> u8 {
-    let v = f64::from(v).clamp(0.0, 1.0);
-    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
-    (s * 255.0).round() as u8
+    SRGB_STEPS.partition_point(|&t| t <= v) as u8
 }
 
 #[cfg(test)]
@@ -150,6 +162,17 @@ mod tests {
     fn srgb_round_trips_every_byte() {
         for b in 0..=255u8 {
             assert_eq!(linear_to_srgb(SRGB_TO_LINEAR[b as usize]), b);
+        }
+    }
+
+    #[test]
+    fn srgb_encoding_rounds_the_standard_curve() {
+        for k in 0..=20_000 {
+            let v = k as f64 / 20_000.0;
+            let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+            let want = (s * 255.0).round();
+            let got = f64::from(linear_to_srgb(v as f32));
+            assert!((got - want).abs() <= f64::from(((s * 255.0).fract() - 0.5).abs() < 1e-4), "{v}: {got} vs {want}");
         }
     }
 
