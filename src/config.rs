@@ -31,6 +31,29 @@ pub struct Config {
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default "fast".
     pub vertex_cache: VertexCache,
+    /// Widest a chunk's texture may be, in texels per side. Where a chunk
+    /// would need more to keep T_g ≤ δ/τ_max, the cap wins and the build
+    /// says so (the bound then does not hold for that level). Range:
+    /// 2..=16384. Default 512.
+    pub max_texture_px: u32,
+    /// How texture tiles are stored in the .glb: `png` (exact) or `jpeg`
+    /// (smaller, lossy). Default `png`.
+    pub texture_format: TextureFormat,
+    /// JPEG quality, 1..=100 (used with `texture_format = "jpeg"`). Default 85.
+    pub jpeg_quality: u8,
+    /// Resolution of the generated colour map (no `--texture` image), in
+    /// texels per DEM sample spacing: 1 = one texel per sample, 2 = twice as
+    /// fine. Range: 0.125..=8. Default 1.
+    pub hillshade_multiple: f64,
+    /// Direction the sun shines from for the generated hillshade, degrees
+    /// clockwise from north. Range: 0..360. Default 315 (north-west).
+    pub sun_azimuth_deg: f64,
+    /// Sun height above the horizon for the generated hillshade, degrees.
+    /// Range: > 0 and ≤ 90. Default 45.
+    pub sun_elevation_deg: f64,
+    /// Also write a tangent-space normal map from the full-resolution DEM
+    /// into every chunk (`normalTexture`). Default false.
+    pub normal_map: bool,
 }
 
 /// Triangle order for the vertex cache. Measured on 1 m SRTM chunks (average
@@ -47,6 +70,18 @@ pub enum VertexCache {
     Best,
 }
 
+/// How texture tiles are encoded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, serde::Serialize, schemars::JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum TextureFormat {
+    /// Lossless: neighbouring tiles' border texels are equal exactly.
+    #[default]
+    Png,
+    /// Lossy, with `jpeg_quality`: smaller files; borders equal within the
+    /// compression error.
+    Jpeg,
+}
+
 impl Default for Config {
     fn default() -> Self {
         Config {
@@ -57,6 +92,13 @@ impl Default for Config {
             spacing_m: None,
             leaf_cells: None,
             vertex_cache: VertexCache::Fast,
+            max_texture_px: 512,
+            texture_format: TextureFormat::Png,
+            jpeg_quality: 85,
+            hillshade_multiple: 1.0,
+            sun_azimuth_deg: 315.0,
+            sun_elevation_deg: 45.0,
+            normal_map: false,
         }
     }
 }
@@ -120,6 +162,21 @@ impl Config {
             && !(2..=250).contains(&c)
         {
             return bad("leaf_cells", c.to_string(), "must be within 2..=250 cells");
+        }
+        if !(2..=16384).contains(&self.max_texture_px) {
+            return bad("max_texture_px", self.max_texture_px.to_string(), "must be within 2..=16384 texels");
+        }
+        if !(1..=100).contains(&self.jpeg_quality) {
+            return bad("jpeg_quality", self.jpeg_quality.to_string(), "must be within 1..=100");
+        }
+        if !(0.125..=8.0).contains(&self.hillshade_multiple) {
+            return bad("hillshade_multiple", self.hillshade_multiple.to_string(), "must be within 0.125..=8");
+        }
+        if !(0.0..360.0).contains(&self.sun_azimuth_deg) {
+            return bad("sun_azimuth_deg", self.sun_azimuth_deg.to_string(), "must be within 0..360 degrees");
+        }
+        if !(self.sun_elevation_deg > 0.0 && self.sun_elevation_deg <= 90.0) {
+            return bad("sun_elevation_deg", self.sun_elevation_deg.to_string(), "must be > 0 and <= 90 degrees");
         }
         Ok(())
     }

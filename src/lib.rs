@@ -1,9 +1,9 @@
 //! terrachunk: a DEM in, a Chunked-LOD tileset out (Ulrich 2002; DESIGN.md).
 //!
 //! The stages, in the order [`pipeline::build`] calls them: [`dem`] (load) →
-//! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] → [`output`]
-//! (glTF chunks, 3D Tiles index); [`verify`] re-checks a written tileset from
-//! its files alone.
+//! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] →
+//! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`verify`]
+//! re-checks a written tileset from its files alone.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
@@ -16,4 +16,5 @@ pub mod morph;
 pub mod output;
 pub mod pipeline;
 pub mod quadtree;
+pub mod texture;
 pub mod verify;

@@ -6,8 +6,9 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use terrachunk::config::Config;
+use terrachunk::config::{Config, TextureFormat};
 use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::texture::TextureSource;
 use terrachunk::verify::{read_chunk, verify};
 
 #[derive(Parser)]
@@ -46,6 +47,22 @@ enum Command {
         /// Ground spacing in metres: `S` or `SX,SZ`.
         #[arg(long, value_parser = parse_spacing)]
         spacing: Option<[f64; 2]>,
+        /// Colour image for the chunks (PNG, JPEG, 8-bit GeoTIFF), or `none`
+        /// for untextured chunks [default: a hillshade generated from the DEM].
+        #[arg(long, value_name = "IMAGE|none")]
+        texture: Option<String>,
+        /// How texture tiles are stored in the .glb.
+        #[arg(long, value_enum)]
+        texture_format: Option<FormatArg>,
+        /// JPEG quality, 1..=100.
+        #[arg(long)]
+        jpeg_quality: Option<u8>,
+        /// Widest texture tile, texels.
+        #[arg(long)]
+        max_texture_px: Option<u32>,
+        /// Also write a tangent-space normal map from the full-resolution DEM.
+        #[arg(long)]
+        normal_map: bool,
         /// Replace an existing output directory.
         #[arg(long)]
         force: bool,
@@ -66,6 +83,12 @@ enum Command {
         /// A chunk file, e.g. out/tiles/0/0/0.glb.
         glb: PathBuf,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum FormatArg {
+    Png,
+    Jpeg,
 }
 
 fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
@@ -91,7 +114,23 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
-        Command::Build { dem, out, config, max_error, tau_max, threads, vertical_scale, spacing, force, report } => {
+        Command::Build {
+            dem,
+            out,
+            config,
+            max_error,
+            tau_max,
+            threads,
+            vertical_scale,
+            spacing,
+            texture,
+            texture_format,
+            jpeg_quality,
+            max_texture_px,
+            normal_map,
+            force,
+            report,
+        } => {
             let mut cfg = match &config {
                 Some(p) => match Config::from_file(p) {
                     Ok(c) => c,
@@ -117,11 +156,25 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if spacing.is_some() {
                 cfg.spacing_m = spacing;
             }
+            if let Some(f) = texture_format {
+                cfg.texture_format = match f {
+                    FormatArg::Png => TextureFormat::Png,
+                    FormatArg::Jpeg => TextureFormat::Jpeg,
+                };
+            }
+            if let Some(v) = jpeg_quality {
+                cfg.jpeg_quality = v;
+            }
+            if let Some(v) = max_texture_px {
+                cfg.max_texture_px = v;
+            }
+            cfg.normal_map |= normal_map;
             let opts = BuildOptions {
                 inputs: dem,
                 out: out.clone(),
                 force,
                 config: cfg,
+                texture: texture.as_deref().map_or(TextureSource::Generated, TextureSource::from_arg),
                 progress: std::io::stderr().is_terminal(),
             };
             match build(&opts) {
@@ -156,6 +209,22 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 );
             }
             println!("{} shared borders compared", r.borders_checked);
+            if let Some(t) = &r.texture {
+                println!(
+                    "{:>5} {:>7} {:>10} {:>10} {:>21} {:>18}",
+                    "level", "chunks", "T_g (m)", "δ/τ (m)", "over δ/τ: at source", "capped (stated)"
+                );
+                for (l, c) in &t.levels {
+                    println!(
+                        "{l:>5} {:>7} {:>10.4} {:>10.4} {:>21} {:>18}",
+                        c.chunks, c.texel_m, c.bound_m, c.at_source, c.capped
+                    );
+                }
+                println!(
+                    "{} texture seams compared, border texels differ by up to {} (allowed {}), RMS {:.2} (allowed {:.2})",
+                    t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
+                );
+            }
             if r.failures.is_empty() {
                 println!("OK");
                 Ok(ExitCode::SUCCESS)
@@ -198,6 +267,23 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
             );
             println!("morph dy   {mlo:.4}..{mhi:.4} m");
+            if let Some(t) = &c.texture {
+                let spacing = |a: usize| {
+                    let cells = f64::from(c.footprint[2 * a + 1] - c.footprint[2 * a]);
+                    cells * c.spacing_m[a] / f64::from([t.colour.width, t.colour.height][a] - 1)
+                };
+                println!(
+                    "texture    {} × {} texels ({}), T_g {:.4} × {:.4} m",
+                    t.colour.width,
+                    t.colour.height,
+                    t.colour.mime,
+                    spacing(0),
+                    spacing(1)
+                );
+                if let Some((n, set)) = &t.normal {
+                    println!("normal map {} × {} texels (TEXCOORD_{set})", n.width, n.height);
+                }
+            }
             Ok(ExitCode::SUCCESS)
         }
     }
@@ -218,15 +304,51 @@ fn print_summary(r: &Report, out: &std::path::Path) {
             l.level, l.delta_m, l.chunks, l.leaves, l.triangles, l.skirt_triangles, l.max_error_m
         );
     }
+    if r.levels.iter().any(|l| l.texture.is_some()) {
+        println!(
+            "{:>5} {:>10} {:>10} {:>11} {:>13} {:>21} {:>13} {:>14}",
+            "level", "T_g (m)", "δ/τ (m)", "largest", "texels", "sized by b/s/cap", "texture B", "geometry B"
+        );
+        for l in &r.levels {
+            if let Some(t) = &l.texture {
+                println!(
+                    "{:>5} {:>10.4} {:>10.4} {:>11} {:>13} {:>21} {:>13} {:>14}",
+                    l.level,
+                    t.texel_m,
+                    t.bound_m,
+                    format!("{}×{}", t.largest[0], t.largest[1]),
+                    t.texels,
+                    format!("{}/{}/{}", t.limited_by_bound, t.limited_by_source, t.limited_by_cap),
+                    t.texture_bytes,
+                    l.bytes - t.texture_bytes
+                );
+            }
+        }
+        for l in &r.levels {
+            if let Some(t) = l.texture.as_ref().filter(|t| t.over_bound > 0) {
+                let why = if t.limited_by_cap > 0 {
+                    "max_texture_px caps them (raise it to keep the bound)"
+                } else {
+                    "the texture source is coarser than that (no tile is finer than its source)"
+                };
+                println!(
+                    "level {}: {} chunk(s) have T_g up to {:.4} m > δ/τ_max = {:.4} m: {why}",
+                    l.level, t.over_bound, t.texel_m, t.bound_m
+                );
+            }
+        }
+    }
     let s = &r.seconds;
     println!("{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display());
     println!(
-        "time: load {:.2} s, plan {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
+        "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
         s.load,
         s.plan,
+        s.texture_source,
         s.chunks,
         r.thread_seconds.mesh,
         r.thread_seconds.skirt_morph,
+        r.thread_seconds.texture,
         r.thread_seconds.write,
         s.index,
         s.total,

@@ -1,5 +1,5 @@
-//! The orchestrator: load → plan → mesh → skirt → morph → write, one call
-//! each, with plain data between them (DESIGN.md, "The pipeline").
+//! The orchestrator: load → plan → mesh → skirt → morph → texture → write,
+//! one call each, with plain data between them (DESIGN.md, "The pipeline").
 //!
 //! The tree is built top-down, one level at a time: a chunk needs its
 //! parent's mesh, and siblings are independent, so each level's chunks run in
@@ -24,6 +24,8 @@ use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
+use crate::texture::source::{generate, load_image};
+use crate::texture::{ColourSource, Limit, NormalSource, TextureError, TextureExtras, TextureSource, Texturer};
 
 /// What `build` needs.
 #[derive(Clone, Debug)]
@@ -36,6 +38,8 @@ pub struct BuildOptions {
     pub force: bool,
     /// Validated settings.
     pub config: Config,
+    /// Where the chunks' colour comes from (default: generated from the DEM).
+    pub texture: TextureSource,
     /// Draw a progress bar (when stderr is a terminal).
     pub progress: bool,
 }
@@ -55,6 +59,9 @@ pub enum BuildError {
     /// A chunk could not meet its δ within u16 indices even with many refine levels.
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    /// The texture image could not be used, or a tile could not be encoded.
+    #[error(transparent)]
+    Texture(#[from] TextureError),
     /// Writing failed.
     #[error("{path}: {source}")]
     Io {
@@ -70,6 +77,8 @@ impl BuildError {
     pub fn exit_code(&self) -> i32 {
         match self {
             BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
+            BuildError::Texture(TextureError::Encode { .. }) => 1,
+            BuildError::Texture(_) => 2,
             BuildError::Mesh(_) | BuildError::Io { .. } => 1,
         }
     }
@@ -94,6 +103,34 @@ pub struct LevelReport {
     pub max_error_m: f64,
     /// Chunks of this level that have no children (already within max_error).
     pub leaves: usize,
+    /// Bytes of the level's .glb files.
+    pub bytes: u64,
+    /// The level's texture tiles (absent when untextured).
+    pub texture: Option<LevelTexture>,
+}
+
+/// Per-level figures of the texture tiles.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct LevelTexture {
+    /// Largest T_g (texel spacing on the ground, either axis) of the level's
+    /// chunks, metres.
+    pub texel_m: f64,
+    /// δ(L)/τ_max, metres: the bound T_g should keep.
+    pub bound_m: f64,
+    /// Chunks whose tile the bound sized (T_g ≤ δ/τ_max, power of two).
+    pub limited_by_bound: usize,
+    /// Chunks whose tile the source's resolution stopped (as fine as the source).
+    pub limited_by_source: usize,
+    /// Chunks whose tile `max_texture_px` stopped.
+    pub limited_by_cap: usize,
+    /// Chunks with T_g > δ/τ_max.
+    pub over_bound: usize,
+    /// Largest tile, texels `[across, down]`.
+    pub largest: [u32; 2],
+    /// Texels written, all chunks of the level (colour only).
+    pub texels: u64,
+    /// Bytes of encoded images (colour and normal map) in the level's .glb files.
+    pub texture_bytes: u64,
 }
 
 /// What a build did and cost.
@@ -113,7 +150,8 @@ pub struct Report {
     pub bytes: u64,
     /// Bytes per input sample.
     pub bytes_per_sample: f64,
-    /// Wall seconds per stage: load, plan, mesh (incl. skirt, morph, write), index.
+    /// Wall seconds per stage: load, plan, texture source, chunks (mesh,
+    /// skirt, morph, texture, write), index.
     pub seconds: StageTimes,
     /// Thread-seconds spent inside each per-chunk stage (summed over threads).
     pub thread_seconds: ChunkStageTimes,
@@ -135,6 +173,8 @@ pub struct StageTimes {
     pub load: f64,
     /// Void fill and tree plan.
     pub plan: f64,
+    /// Loading or generating the texture source.
+    pub texture_source: f64,
     /// All chunks: mesh, skirt, morph, encode, write.
     pub chunks: f64,
     /// tileset.json and the final rename.
@@ -150,6 +190,8 @@ pub struct ChunkStageTimes {
     pub mesh: f64,
     /// Normals, morph targets and skirts.
     pub skirt_morph: f64,
+    /// Resampling and encoding texture tiles.
+    pub texture: f64,
     /// glTF encoding and file writes.
     pub write: f64,
 }
@@ -170,7 +212,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
 
     let tmp = temp_dir_for(&opts.out);
     let result = pool.install(|| build_into(&hf, opts, &tmp));
-    let (mut report, tree, records, t_plan, t_chunks) = match result {
+    let (mut report, tree, records, texture, [t_plan, t_source, t_chunks]) = match result {
         Ok(r) => r,
         Err(e) => {
             let _ = std::fs::remove_dir_all(&tmp);
@@ -179,7 +221,8 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     };
     let t_idx = Instant::now();
     let finish = || -> Result<u64, BuildError> {
-        let extras = tileset_extras(&hf, opts, &tree);
+        let mut extras = tileset_extras(&hf, opts, &tree);
+        extras.texture = texture;
         let doc = tileset_json(&tree, &records, &extras);
         let bytes = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
         let path = tmp.join("tileset.json");
@@ -203,6 +246,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     report.seconds = StageTimes {
         load: t_load.as_secs_f64(),
         plan: t_plan.as_secs_f64(),
+        texture_source: t_source.as_secs_f64(),
         chunks: t_chunks.as_secs_f64(),
         index: t_idx.elapsed().as_secs_f64(),
         total: t0.elapsed().as_secs_f64(),
@@ -211,13 +255,20 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     Ok(report)
 }
 
-type Built = (Report, ChunkTree, Vec<TileRecord>, Duration, Duration);
+type Built = (Report, ChunkTree, Vec<TileRecord>, Option<TextureExtras>, [Duration; 3]);
 
 fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
     let t = Instant::now();
     let filled = void_fill(hf);
     let grid = Grid { width: hf.width, height: hf.height, heights: &hf.heights, filled: filled.as_deref() };
     let t_plan = t.elapsed();
+    let t = Instant::now();
+    let colour = match &opts.texture {
+        TextureSource::None => None,
+        TextureSource::Generated => Some(generate(hf, filled.as_deref(), &opts.config)?),
+        TextureSource::Image(path) => Some(load_image(path, hf)?),
+    };
+    let t_source = t.elapsed();
     let t = Instant::now();
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
@@ -231,11 +282,11 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, leaf_cells, refine);
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
-        match build_levels(hf, &grid, &tree, opts, tmp) {
-            Ok((mut report, records)) => {
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp) {
+            Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.leaf_cells = leaf_cells;
-                return Ok((report, tree, records, t_plan, t.elapsed()));
+                return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
             Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
             Err(e) => return Err(e),
@@ -319,6 +370,7 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
 struct Timers {
     mesh: AtomicU64,
     skirt_morph: AtomicU64,
+    texture: AtomicU64,
     write: AtomicU64,
 }
 
@@ -332,19 +384,29 @@ fn build_levels(
     hf: &Heightfield,
     grid: &Grid,
     tree: &ChunkTree,
+    colour: Option<&ColourSource>,
     opts: &BuildOptions,
     tmp: &Path,
-) -> Result<(Report, Vec<TileRecord>), BuildError> {
+) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
+    let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+    let normals = (cfg.normal_map && colour.is_some()).then(|| NormalSource::new(grid, hf.spacing_m));
+    let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
     let run = Run {
         hf,
         grid,
         tree,
         opts,
         tmp,
-        ctx: GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: opts.config.vertex_cache },
-        timers: Timers { mesh: AtomicU64::new(0), skirt_morph: AtomicU64::new(0), write: AtomicU64::new(0) },
+        ctx: GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: cfg.vertex_cache },
+        texturer: texturer.as_ref(),
+        timers: Timers {
+            mesh: AtomicU64::new(0),
+            skirt_morph: AtomicU64::new(0),
+            texture: AtomicU64::new(0),
+            write: AtomicU64::new(0),
+        },
         bytes: AtomicU64::new(0),
         failed: std::sync::atomic::AtomicBool::new(false),
         bar: progress_bar(opts.progress, planned as u64),
@@ -369,22 +431,45 @@ fn build_levels(
     };
     for c in &chunks {
         let level = c.record.key.level;
+        let delta = tree.delta_m[level as usize];
         if report.levels.last().is_none_or(|l| l.level != level) {
-            report.levels.push(LevelReport { level, delta_m: tree.delta_m[level as usize], ..LevelReport::default() });
+            report.levels.push(LevelReport { level, delta_m: delta, ..LevelReport::default() });
         }
         let lr = report.levels.last_mut().expect("pushed above");
+        let figures = &c.figures;
         lr.chunks += 1;
-        lr.triangles += c.figures.triangles;
-        lr.skirt_triangles += c.figures.skirt_triangles;
-        lr.vertices += c.figures.vertices;
+        lr.triangles += figures.triangles;
+        lr.skirt_triangles += figures.skirt_triangles;
+        lr.vertices += figures.vertices;
+        lr.bytes += figures.bytes;
+        if let Some(tf) = &figures.texture {
+            let bound_m = delta / cfg.tau_max_px;
+            let lt = lr.texture.get_or_insert_with(|| LevelTexture { bound_m, ..LevelTexture::default() });
+            lt.texel_m = lt.texel_m.max(tf.texel_m);
+            match tf.limit {
+                Limit::Bound => lt.limited_by_bound += 1,
+                Limit::Source => lt.limited_by_source += 1,
+                Limit::MaxTexturePx => lt.limited_by_cap += 1,
+            }
+            lt.over_bound += usize::from(tf.texel_m > bound_m * (1.0 + 1e-9));
+            lt.largest = [0, 1].map(|a| lt.largest[a].max(tf.texels[a]));
+            lt.texels += u64::from(tf.texels[0]) * u64::from(tf.texels[1]);
+            lt.texture_bytes += tf.bytes;
+        }
         lr.max_error_m = lr.max_error_m.max(c.max_error_m);
         lr.leaves += usize::from(c.leaf);
     }
     report.bytes = run.bytes.load(Ordering::Relaxed);
     let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
     let t = &run.timers;
-    report.thread_seconds = ChunkStageTimes { mesh: s(&t.mesh), skirt_morph: s(&t.skirt_morph), write: s(&t.write) };
-    Ok((report, chunks.into_iter().map(|c| c.record).collect()))
+    report.thread_seconds = ChunkStageTimes {
+        mesh: s(&t.mesh),
+        skirt_morph: s(&t.skirt_morph),
+        texture: s(&t.texture),
+        write: s(&t.write),
+    };
+    let generated = opts.texture == TextureSource::Generated;
+    Ok((report, chunks.into_iter().map(|c| c.record).collect(), texturer.map(|t| t.extras(cfg, generated))))
 }
 
 /// What one chunk adds to the report and the index.
@@ -404,6 +489,7 @@ struct Run<'a> {
     opts: &'a BuildOptions,
     tmp: &'a Path,
     ctx: GlbContext<'a>,
+    texturer: Option<&'a Texturer<'a>>,
     timers: Timers,
     bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -437,7 +523,7 @@ impl Run<'_> {
         Ok(all)
     }
 
-    /// Meshes, assembles and writes one chunk.
+    /// Meshes, assembles, textures and writes one chunk.
     fn chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, BuiltChunk), BuildError> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
@@ -458,7 +544,10 @@ impl Run<'_> {
         let chunk = assemble(grid, self.hf.spacing_m, &mesh, margin);
         Timers::add(&timers.skirt_morph, t);
         let t = Instant::now();
-        let glb = encode_glb(&chunk, &self.ctx);
+        let texture = self.texturer.map(|tx| tx.tile(key)).transpose()?;
+        Timers::add(&timers.texture, t);
+        let t = Instant::now();
+        let glb = encode_glb(&chunk, texture.as_ref(), &self.ctx);
         let path = self.tmp.join(tile_uri(key));
         std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
             .and_then(|_| std::fs::write(&path, &glb))
@@ -471,6 +560,13 @@ impl Run<'_> {
             triangles: chunk.surface.triangle_count(),
             skirt_triangles: chunk.skirt.triangle_count(),
             vertices: chunk.surface.positions.len(),
+            bytes: glb.len() as u64,
+            texture: texture.map(|t| TileFigures {
+                texel_m: t.colour.texel_size_m(),
+                texels: t.colour.texels,
+                limit: t.colour.limit[0].max(t.colour.limit[1]),
+                bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
+            }),
         };
         let leaf = mesh.meets(self.opts.config.max_error_m) || tree.children(key).is_empty();
         let max_error_m = mesh.max_error_m;
@@ -484,6 +580,16 @@ struct LevelFigures {
     triangles: usize,
     skirt_triangles: usize,
     vertices: usize,
+    bytes: u64,
+    texture: Option<TileFigures>,
+}
+
+/// What a level's summary needs from one chunk's texture.
+struct TileFigures {
+    texel_m: f64,
+    texels: [u32; 2],
+    limit: Limit,
+    bytes: u64,
 }
 
 /// Surface (written triangles only) with normals and morph targets, then skirts.
@@ -563,6 +669,7 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
                        Ulrich's t = clamp(2 rho/tau - 1, 0, 1) (w = 1 - t) can reach 9/8 tau"
                 .into(),
         },
+        texture: None,
         skirt: "bottom = lowest valid sample, vertex or parent height between the neighbouring border vertices, \
                 minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
             .into(),

@@ -14,7 +14,16 @@
 //!   the morphed chunk coincides with its parent everywhere; skirt bottoms do
 //!   not morph;
 //! - structure: 3D Tiles 1.1 fields, REPLACE, geometricError = δ(L) halving
-//!   with each level, boxes that contain their content, extras that match.
+//!   with each level, boxes that contain their content, extras that match;
+//! - texture (when the tileset says its chunks are textured): every tile's
+//!   texel spacing T_g = footprint / (texels − 1), from the embedded image's
+//!   size, is ≤ δ/τ_max, or the tile is as fine as its source allows, or
+//!   `max_texture_px` caps it on a level the extras state as capped (counted
+//!   as exceptions, not failures); no tile is finer than its source; every
+//!   vertex's TEXCOORD lies in [0, 1] where the footprint → texel-centre map
+//!   puts it; the material and sampler are as the contract says; and
+//!   neighbouring same-level tiles have equal border texels (exactly for
+//!   PNG, within the compression error for JPEG).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -29,6 +38,7 @@ use crate::mesh::MeshVertex;
 use crate::morph::{SurfaceLocator, barycentric};
 use crate::output::tileset::{TileExtras, TilesetExtras};
 use crate::quadtree::ChunkKey;
+use crate::texture::{Limit, TextureExtras};
 
 /// Why verification could not run (as opposed to finding problems).
 #[derive(Debug, thiserror::Error)]
@@ -57,12 +67,46 @@ pub struct ChunkFile {
     pub footprint: [u32; 4],
     /// Node translation (f64 as written).
     pub translation: [f64; 3],
+    /// `[s_x, s_z]` from the node extras, metres.
+    pub spacing_m: [f64; 2],
     /// Surface: world positions (translation + local), morph y deltas, triangles.
     pub surface: Prim,
     /// Skirt part, if any.
     pub skirt: Option<Prim>,
     /// Whether `mesh.weights == [0]` and `targetNames == ["parent"]`.
     pub morph_contract: bool,
+    /// The texture tile(s), if the chunk has a textured material.
+    pub texture: Option<ChunkTexture>,
+}
+
+/// A chunk's textures as read back.
+#[derive(Clone, Debug)]
+pub struct ChunkTexture {
+    /// The base colour image.
+    pub colour: ImageEdges,
+    /// The normal map, if any, and its texCoord set.
+    pub normal: Option<(ImageEdges, u32)>,
+    /// Where the material or sampler departs from the contract.
+    pub contract: Vec<String>,
+}
+
+/// An embedded image's size and its four border lines of texels (RGB).
+#[derive(Clone, Debug, Default)]
+pub struct ImageEdges {
+    /// Texels across (x).
+    pub width: u32,
+    /// Texels down (z).
+    pub height: u32,
+    /// `image/png` or `image/jpeg`.
+    pub mime: String,
+    /// First row, west to east.
+    pub north: Vec<[u8; 3]>,
+    /// Last row.
+    pub south: Vec<[u8; 3]>,
+    /// First column, north to south.
+    pub west: Vec<[u8; 3]>,
+    /// Last column.
+    pub east: Vec<[u8; 3]>,
 }
 
 /// A primitive read back.
@@ -78,6 +122,10 @@ pub struct Prim {
     pub triangles: Vec<[u32; 3]>,
     /// Largest |local coordinate|: sets the f32 tolerance.
     pub local_extent: f64,
+    /// TEXCOORD_0 (empty when untextured).
+    pub uv: Vec<[f32; 2]>,
+    /// TEXCOORD_1 (empty unless the normal map has its own).
+    pub uv1: Vec<[f32; 2]>,
 }
 
 fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
@@ -89,7 +137,7 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
     let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
     let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
     let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
-    let (doc, buffers, _) = gltf::import_slice(&bytes).map_err(|e| file_err(path, format!("bad glTF: {e}")))?;
+    let (doc, buffers, images) = gltf::import_slice(&bytes).map_err(|e| file_err(path, format!("bad glTF: {e}")))?;
     let node = &json["nodes"][0];
     let tc = &node["extras"]["terrachunk"];
     let num = |v: &Value, what: &str| v.as_f64().ok_or_else(|| file_err(path, format!("node extras lack {what}")));
@@ -123,7 +171,20 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         {
             return Err(file_err(path, format!("{role}: inconsistent accessor sizes")));
         }
+        let read_uv = |set: u32| -> Result<Vec<[f32; 2]>, VerifyError> {
+            let uv: Vec<[f32; 2]> = reader.read_tex_coords(set).map(|t| t.into_f32().collect()).unwrap_or_default();
+            if !uv.is_empty() && uv.len() != local.len() {
+                return Err(file_err(
+                    path,
+                    format!("{role}: TEXCOORD_{set} has {} of {} vertices", uv.len(), local.len()),
+                ));
+            }
+            Ok(uv)
+        };
+        let (uv, uv1) = (read_uv(0)?, read_uv(1)?);
         let p = Prim {
+            uv,
+            uv1,
             positions: local.iter().map(|l| [0, 1, 2].map(|a| translation[a] + f64::from(l[a]))).collect(),
             morph_dy: deltas.iter().map(|d| f64::from(d[1])).collect(),
             morph_dxz: deltas.iter().map(|d| d[0].abs().max(d[2].abs())).fold(0.0f32, f32::max).into(),
@@ -141,10 +202,72 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         delta_m: num(&tc["delta_m"], "delta_m")?,
         footprint,
         translation,
+        spacing_m: [num(&tc["spacing_m"][0], "spacing_m")?, num(&tc["spacing_m"][1], "spacing_m")?],
         surface: surface.ok_or_else(|| file_err(path, "no surface primitive"))?,
         skirt,
         morph_contract,
+        texture: read_texture(path, &json, &images)?,
     })
+}
+
+/// The material's textures, their images' borders, and what in the
+/// material and sampler departs from the contract.
+fn read_texture(path: &Path, json: &Value, images: &[gltf::image::Data]) -> Result<Option<ChunkTexture>, VerifyError> {
+    let mat = &json["materials"][0];
+    let pbr = &mat["pbrMetallicRoughness"];
+    let Some(index) = pbr["baseColorTexture"]["index"].as_u64() else {
+        return Ok(None);
+    };
+    let mut contract = Vec::new();
+    if pbr["metallicFactor"].as_f64() != Some(0.0) || pbr["roughnessFactor"].as_f64().unwrap_or(1.0) != 1.0 {
+        contract.push("material is not metallic 0, roughness 1".to_string());
+    }
+    if pbr["baseColorTexture"]["texCoord"].as_u64().unwrap_or(0) != 0 {
+        contract.push("base colour does not use TEXCOORD_0".to_string());
+    }
+    let image_of = |texture: u64| -> Result<ImageEdges, VerifyError> {
+        let t = &json["textures"][texture as usize];
+        let src = t["source"].as_u64().ok_or_else(|| file_err(path, format!("texture {texture} has no image")))?;
+        let mime = json["images"][src as usize]["mimeType"].as_str().unwrap_or("").to_string();
+        let img = images.get(src as usize).ok_or_else(|| file_err(path, format!("image {src} is missing")))?;
+        let c = match img.format {
+            gltf::image::Format::R8G8B8 => 3,
+            gltf::image::Format::R8G8B8A8 => 4,
+            other => return Err(file_err(path, format!("image {src} has pixel format {other:?}, not 8-bit RGB"))),
+        };
+        let (w, h) = (img.width as usize, img.height as usize);
+        if w < 2 || h < 2 || img.pixels.len() < w * h * c {
+            return Err(file_err(path, format!("image {src} is {w} × {h}")));
+        }
+        let px = |i: usize, j: usize| {
+            let p = &img.pixels[(i * w + j) * c..];
+            [p[0], p[1], p[2]]
+        };
+        Ok(ImageEdges {
+            width: img.width,
+            height: img.height,
+            mime,
+            north: (0..w).map(|j| px(0, j)).collect(),
+            south: (0..w).map(|j| px(h - 1, j)).collect(),
+            west: (0..h).map(|i| px(i, 0)).collect(),
+            east: (0..h).map(|i| px(i, w - 1)).collect(),
+        })
+    };
+    let colour = image_of(index)?;
+    let normal = match mat["normalTexture"]["index"].as_u64() {
+        Some(n) => Some((image_of(n)?, mat["normalTexture"]["texCoord"].as_u64().unwrap_or(0) as u32)),
+        None => None,
+    };
+    for t in json["textures"].as_array().into_iter().flatten() {
+        let sampler = &json["samplers"][t["sampler"].as_u64().unwrap_or(u64::MAX) as usize];
+        if sampler["wrapS"] != 33071 || sampler["wrapT"] != 33071 {
+            contract.push("sampler does not clamp to edge".to_string());
+        }
+        if !(9984..=9987).contains(&sampler["minFilter"].as_u64().unwrap_or(0)) {
+            contract.push("sampler's minFilter is not a mipmap filter".to_string());
+        }
+    }
+    Ok(Some(ChunkTexture { colour, normal, contract }))
 }
 
 /// Per-level measurements.
@@ -169,6 +292,69 @@ pub struct VerifyReport {
     pub borders_checked: usize,
     /// Problems, each naming the chunk.
     pub failures: Vec<String>,
+    /// Texture measurements (absent for an untextured tileset).
+    pub texture: Option<TextureCheck>,
+}
+
+/// What verify measured of the texture tiles.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TextureCheck {
+    /// Per level.
+    pub levels: BTreeMap<u32, TextureLevelCheck>,
+    /// Shared borders whose edge texels were compared.
+    pub seams_checked: usize,
+    /// Largest difference of one channel of a border texel between
+    /// neighbours (0 when they are equal).
+    pub max_seam_diff: u8,
+    /// The largest difference allowed: 0 for PNG, the JPEG error otherwise.
+    pub seam_tolerance: u8,
+    /// Largest root-mean-square channel difference along one shared edge.
+    pub max_seam_rms: f64,
+    /// The largest RMS allowed.
+    pub seam_rms_tolerance: f64,
+}
+
+/// One level's tiles, as measured.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TextureLevelCheck {
+    /// Textured chunks.
+    pub chunks: usize,
+    /// Largest T_g = footprint / (texels − 1), either axis, metres.
+    pub texel_m: f64,
+    /// δ(L)/τ_max, metres.
+    pub bound_m: f64,
+    /// Chunks with T_g > δ/τ_max that are as fine as their source allows.
+    pub at_source: usize,
+    /// Chunks with T_g > δ/τ_max because `max_texture_px` caps them, on a
+    /// level the extras state as capped: the stated exception.
+    pub capped: usize,
+}
+
+/// Why a tile may exceed T_g ≤ δ/τ_max.
+#[derive(Clone, Copy, PartialEq, PartialOrd)]
+enum Texel {
+    Bound,
+    AtSource,
+    Capped,
+}
+
+/// How far neighbours' border texels may differ: `(largest channel
+/// difference, largest RMS over one edge)`. PNG: not at all. JPEG: each
+/// side carries its own compression error, which grows with the texel-to-
+/// texel contrast; the bands are the worst measured on the fixtures (2.4 km
+/// topo-bathymetry in 31-texel tiles: max 19 / RMS 6.7 at quality 95,
+/// 64 / 17.9 at 80, 84 / 20.2 at 50, 97 / 27.5 at 20) with a third or more
+/// to spare. They catch a wrong or shifted image on smooth ground, not a
+/// one-texel slip on rough ground; the texel positions themselves are the
+/// PNG check's to prove, the encoding being the only difference.
+fn seam_tolerance(tx: &TextureExtras) -> (u8, f64) {
+    match tx.jpeg_quality {
+        None => (0, 0.0),
+        Some(q) if q >= 90 => (48, 12.0),
+        Some(q) if q >= 70 => (96, 24.0),
+        Some(q) if q >= 50 => (112, 28.0),
+        Some(_) => (144, 36.0),
+    }
 }
 
 /// Checks the tileset at `dir`; `dem` overrides the source it names.
@@ -179,6 +365,10 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     let extras: TilesetExtras = serde_json::from_value(ts["extras"]["terrachunk"].clone())
         .map_err(|e| file_err(&ts_path, format!("extras.terrachunk: {e}")))?;
     let mut report = VerifyReport::default();
+    if let Some(tx) = &extras.texture {
+        let (seam_tolerance, seam_rms_tolerance) = seam_tolerance(tx);
+        report.texture = Some(TextureCheck { seam_tolerance, seam_rms_tolerance, ..TextureCheck::default() });
+    }
     let fail = |r: &mut VerifyReport, s: String| r.failures.push(s);
 
     // Structure.
@@ -247,7 +437,8 @@ fn check_level(
     chunks: &BTreeMap<ChunkKey, ChunkFile>,
     report: &mut VerifyReport,
 ) {
-    let results: Vec<(ChunkKey, f64, f64, Vec<String>)> = chunks
+    type Checked = (ChunkKey, f64, f64, Option<(f64, Texel)>, Vec<String>);
+    let results: Vec<Checked> = chunks
         .par_iter()
         .map(|(k, c)| {
             let mut problems = Vec::new();
@@ -269,10 +460,19 @@ fn check_level(
             if !c.morph_contract {
                 problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
             }
-            (*k, err, gap, problems)
+            let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
+            (*k, err, gap, texel, problems)
         })
         .collect();
-    for (k, err, gap, problems) in results {
+    for (k, err, gap, texel, problems) in results {
+        if let (Some(tc), Some((texel_m, why))) = (report.texture.as_mut(), texel) {
+            let l = tc.levels.entry(k.level).or_default();
+            l.chunks += 1;
+            l.texel_m = l.texel_m.max(texel_m);
+            l.bound_m = chunks[&k].delta_m / extras.tau_max_px;
+            l.at_source += usize::from(why == Texel::AtSource);
+            l.capped += usize::from(why == Texel::Capped);
+        }
         let l = report.levels.entry(k.level).or_default();
         l.chunks += 1;
         l.delta_m = chunks[&k].delta_m;
@@ -292,9 +492,151 @@ fn check_level(
                 if let Some(p) = compare_border(c, n, dx == 1, extras.spacing_m) {
                     report.failures.push(format!("chunks {} and {}: {p}", name(*k), name(nk)));
                 }
+                if let Some(tc) = report.texture.as_mut() {
+                    tc.seams_checked += 1;
+                    if let Err(p) = compare_seam(c, n, dx == 1, tc) {
+                        report.failures.push(format!("chunks {} and {}: {p}", name(*k), name(nk)));
+                    }
+                }
             }
         }
     }
+}
+
+/// The texture of one chunk: texel size against δ/τ_max and the source,
+/// TEXCOORDs against the footprint, material and sampler. Returns T_g and
+/// why it may exceed the bound.
+fn check_texture(
+    c: &ChunkFile,
+    ex: &TilesetExtras,
+    tx: &TextureExtras,
+    problems: &mut Vec<String>,
+) -> Option<(f64, Texel)> {
+    let Some(t) = &c.texture else {
+        problems.push("has no base colour texture, but the tileset says its chunks are textured".into());
+        return None;
+    };
+    problems.extend(t.contract.iter().cloned());
+    let [x0, x1, z0, z1] = c.footprint;
+    let extents = [f64::from(x1 - x0) * ex.spacing_m[0], f64::from(z1 - z0) * ex.spacing_m[1]];
+    let bound_m = c.delta_m / ex.tau_max_px;
+    let level = tx.levels.iter().find(|l| l.level == c.key.level);
+    let cap_stated = level.is_some_and(|l| l.limit == Limit::MaxTexturePx && !l.bound_holds);
+    let judge = |what: &str, img: &ImageEdges, source_m: [f64; 2], problems: &mut Vec<String>| {
+        let mut worst = (0.0f64, Texel::Bound);
+        for (a, n) in [img.width, img.height].into_iter().enumerate() {
+            let texel_m = extents[a] / f64::from(n - 1);
+            let axis = ["across", "down"][a];
+            if n > 2 && texel_m < source_m[a] * (1.0 - 1e-9) {
+                problems.push(format!(
+                    "{what} texels {axis} are {texel_m:.4} m apart, finer than the source's {:.4} m",
+                    source_m[a]
+                ));
+            }
+            let why = if texel_m <= bound_m * (1.0 + 1e-9) {
+                Texel::Bound
+            } else if extents[a] / f64::from(n) < source_m[a] * (1.0 + 1e-9) {
+                Texel::AtSource // one more texel would be finer than the source
+            } else if n == tx.max_texture_px && cap_stated {
+                Texel::Capped
+            } else {
+                problems.push(format!(
+                    "{what} T_g {axis} = {texel_m:.4} m exceeds δ/τ_max = {bound_m:.4} m with {n} texels,                      though neither its source nor a stated max_texture_px stops a larger tile"
+                ));
+                Texel::Bound
+            };
+            if texel_m > worst.0 {
+                worst.0 = texel_m;
+            }
+            worst.1 = if why > worst.1 { why } else { worst.1 };
+        }
+        worst
+    };
+    let found = judge("colour", &t.colour, tx.source_texel_m, problems);
+    let mut sets = vec![(0u32, [t.colour.width, t.colour.height])];
+    if let Some((nm, set)) = &t.normal {
+        judge("normal map", nm, ex.spacing_m, problems);
+        if *set == 0 && [nm.width, nm.height] != [t.colour.width, t.colour.height] {
+            problems.push("the normal map uses TEXCOORD_0 but differs in size from the colour".into());
+        }
+        if *set == 1 {
+            sets.push((1, [nm.width, nm.height]));
+        }
+    }
+    for (role, prim) in std::iter::once(("surface", &c.surface)).chain(c.skirt.iter().map(|s| ("skirt", s))) {
+        for &(set, texels) in &sets {
+            let uv = if set == 0 { &prim.uv } else { &prim.uv1 };
+            if let Some(p) = check_uv(prim, uv, c.footprint, ex.spacing_m, texels) {
+                problems.push(format!("{role} TEXCOORD_{set}: {p}"));
+            }
+        }
+    }
+    Some(found)
+}
+
+/// Every vertex's TEXCOORD lies in [0, 1] at
+/// `(½ + (n − 1)·(x − x0)/(x1 − x0)) / n` (and likewise for z): the
+/// footprint mapped exactly onto the texel centres.
+fn check_uv(prim: &Prim, uv: &[[f32; 2]], fp: [u32; 4], spacing: [f64; 2], texels: [u32; 2]) -> Option<String> {
+    if uv.len() != prim.positions.len() {
+        return Some(format!("{} coordinates for {} vertices", uv.len(), prim.positions.len()));
+    }
+    let [x0, x1, z0, z1] = fp;
+    let spans = [(x0, x1), (z0, z1)];
+    // f32 rounding of the chunk-local position, then of the coordinate.
+    let tol = |a: usize| {
+        let cells = f64::from(spans[a].1 - spans[a].0);
+        1e-6 + 8.0 * f64::from(f32::EPSILON) * prim.local_extent / spacing[a] / cells
+    };
+    for (p, t) in prim.positions.iter().zip(uv) {
+        for a in 0..2 {
+            let (lo, hi) = spans[a];
+            let n = f64::from(texels[a]);
+            let g = p[2 * a] / spacing[a];
+            let want = (0.5 + (n - 1.0) * (g - f64::from(lo)) / f64::from(hi - lo)) / n;
+            let got = f64::from(t[a]);
+            if !(0.0..=1.0).contains(&got) || (got - want).abs() > tol(a) {
+                return Some(format!(
+                    "vertex at ({:.3}, {:.3}) m has {} = {got}, expected {want} (footprint onto the texel centres)",
+                    p[0],
+                    p[2],
+                    ["u", "v"][a]
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// The border texels of `a` and its east or south neighbour `b`: the same
+/// number, and equal within the format's tolerance.
+fn compare_seam(a: &ChunkFile, b: &ChunkFile, east: bool, tc: &mut TextureCheck) -> Result<(), String> {
+    let (Some(ta), Some(tb)) = (&a.texture, &b.texture) else {
+        return Ok(()); // reported per chunk
+    };
+    let mut pairs = vec![("colour", &ta.colour, &tb.colour, tc.seam_tolerance, tc.seam_rms_tolerance)];
+    if let (Some((na, _)), Some((nb, _))) = (&ta.normal, &tb.normal) {
+        pairs.push(("normal map", na, nb, 0, 0.0)); // always PNG
+    }
+    for (what, ia, ib, tol, rms_tol) in pairs {
+        let (ea, eb) = if east { (&ia.east, &ib.west) } else { (&ia.south, &ib.north) };
+        if ea.len() != eb.len() {
+            return Err(format!("{what}: {} vs {} texels along the shared edge", ea.len(), eb.len()));
+        }
+        let diffs: Vec<u8> = ea.iter().zip(eb).flat_map(|(p, q)| (0..3).map(|c| p[c].abs_diff(q[c]))).collect();
+        let diff = diffs.iter().copied().max().unwrap_or(0);
+        let rms = (diffs.iter().map(|&d| f64::from(d).powi(2)).sum::<f64>() / diffs.len().max(1) as f64).sqrt();
+        if what == "colour" {
+            tc.max_seam_diff = tc.max_seam_diff.max(diff);
+            tc.max_seam_rms = tc.max_seam_rms.max(rms);
+        }
+        if diff > tol || rms > rms_tol {
+            return Err(format!(
+                "{what}: border texels differ by up to {diff}, RMS {rms:.2} (allowed {tol}, RMS {rms_tol:.2})"
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// `L/x/y`.

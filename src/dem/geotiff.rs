@@ -11,6 +11,9 @@
 //! projected linear unit (3076). Nodata is GDAL's ASCII tag GDAL_NODATA
 //! (42113). A TIFF without GeoKeys is a plain grid with 1 m spacing.
 //!
+//! The same tags place an 8-bit gray/RGB(A) TIFF used as a texture
+//! ([`load_rgb8`]); the DEM reader itself refuses colour images.
+//!
 //! Web Mercator (EPSG:3857 and its aliases) is not a metric grid on the
 //! ground: its "metres" are stretched by 1/cos(latitude). Its spacing is
 //! therefore scaled by cos(latitude) at the grid centre, so heights and
@@ -347,12 +350,29 @@ fn place(
     }
 }
 
-/// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
-fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Heightfield) -> Result<(), DemError> {
+/// The georeference as the file stores it, before the grid is turned
+/// north-up: model coordinates of the centre of pixel (0, 0), the step per
+/// pixel (signs as stored), the CRS and the projected linear unit in metres.
+pub(crate) struct RawGeoref {
+    /// Centre of pixel (0, 0) in model units.
+    pub origin: [f64; 2],
+    /// Model units per pixel along a row and down a column (`step[1] < 0` for north-up).
+    pub step: [f64; 2],
+    /// Model type and EPSG code.
+    pub crs: Crs,
+    /// Metres per projected unit (1 unless the file says feet or kilometres).
+    pub unit_m: f64,
+}
+
+/// Reads the GeoTIFF tags (None: the file has no GeoKeys or no transform).
+fn raw_georef<R: std::io::Read + std::io::Seek>(
+    path: &Path,
+    dec: &mut Decoder<R>,
+) -> Result<Option<RawGeoref>, DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let keys = match dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(err)? {
         Some(v) => geokeys(&v.into_u16_vec().map_err(err)?),
-        None => return Ok(()),
+        None => return Ok(None),
     };
     let scale =
         dec.find_tag(Tag::ModelPixelScaleTag).map_err(err)?.map(|v| v.into_f64_vec()).transpose().map_err(err)?;
@@ -370,12 +390,42 @@ fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Height
             let sy = m[1].hypot(m[5]) * if m[5] > 0.0 { -1.0 } else { 1.0 };
             (sx, sy, 0.0, 0.0, m[3], m[7])
         }
-        _ => return Ok(()),
+        _ => return Ok(None),
     };
     let point = keys.get(&GT_RASTER_TYPE) == Some(&2);
     let c = if point { 0.0 } else { 0.5 };
-    let mut origin = [tx + (c - ti) * sx, ty - (c - tj) * sy];
-    let mut step = [sx, -sy];
+    let origin = [tx + (c - ti) * sx, ty - (c - tj) * sy];
+    let step = [sx, -sy];
+    let epsg = |key: u16| keys.get(&key).copied().filter(|&c| c != 0 && c != 32767).map(u32::from);
+    let model = keys.get(&GT_MODEL_TYPE).copied().unwrap_or_else(|| {
+        if keys.contains_key(&PROJECTED_CS_TYPE) {
+            1
+        } else if keys.contains_key(&GEOGRAPHIC_TYPE) {
+            2
+        } else {
+            0
+        }
+    });
+    let crs = match model {
+        2 => Crs::Geographic { epsg: epsg(GEOGRAPHIC_TYPE) },
+        1 => Crs::Projected { epsg: epsg(PROJECTED_CS_TYPE) },
+        // Geocentric or user-defined model: the origin and step are still recorded.
+        _ => Crs::Unknown,
+    };
+    let unit_m = match keys.get(&PROJ_LINEAR_UNITS) {
+        Some(9002) => 0.3048,
+        Some(9003) => 1200.0 / 3937.0,
+        Some(9036) => 1000.0,
+        _ => 1.0,
+    };
+    Ok(Some(RawGeoref { origin, step, crs, unit_m }))
+}
+
+/// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
+fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Heightfield) -> Result<(), DemError> {
+    let Some(RawGeoref { mut origin, mut step, crs, unit_m }) = raw_georef(path, dec)? else {
+        return Ok(());
+    };
     // A grid stored south-up or east-to-west is turned north-up, west-east.
     if step[1] > 0.0 {
         flip_rows(hf);
@@ -387,34 +437,16 @@ fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Height
         origin[0] += step[0] * (hf.width - 1) as f64;
         step[0] = -step[0];
     }
-
-    let epsg = |key: u16| keys.get(&key).copied().filter(|&c| c != 0 && c != 32767).map(u32::from);
-    let model = keys.get(&GT_MODEL_TYPE).copied().unwrap_or_else(|| {
-        if keys.contains_key(&PROJECTED_CS_TYPE) {
-            1
-        } else if keys.contains_key(&GEOGRAPHIC_TYPE) {
-            2
-        } else {
-            0
-        }
-    });
     hf.georef.origin = origin;
     hf.georef.step = step;
-    match model {
-        2 => {
-            hf.georef.crs = Crs::Geographic { epsg: epsg(GEOGRAPHIC_TYPE) };
+    match crs {
+        Crs::Geographic { .. } => {
+            hf.georef.crs = crs;
             hf.apply_local_tangent();
         }
-        1 => {
-            let code = epsg(PROJECTED_CS_TYPE);
-            hf.georef.crs = Crs::Projected { epsg: code };
-            let unit = match keys.get(&PROJ_LINEAR_UNITS) {
-                Some(9002) => 0.3048,
-                Some(9003) => 1200.0 / 3937.0,
-                Some(9036) => 1000.0,
-                _ => 1.0,
-            };
-            let mut spacing = [step[0].abs() * unit, step[1].abs() * unit];
+        Crs::Projected { epsg: code } => {
+            hf.georef.crs = crs;
+            let mut spacing = [step[0].abs() * unit_m, step[1].abs() * unit_m];
             if code.is_some_and(|c| WEB_MERCATOR.contains(&c)) {
                 // Spherical Mercator: y = R·ln tan(π/4 + φ/2), so φ = atan(sinh(y/R)).
                 let y_mid = origin[1] + step[1] * (hf.height - 1) as f64 / 2.0;
@@ -423,12 +455,121 @@ fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Height
             }
             hf.spacing_m = spacing;
         }
-        _ => {
+        Crs::Unknown => {
             // Geocentric or user-defined model: the grid keeps 1 m spacing
             // unless overridden; the origin and step are still recorded.
         }
     }
     Ok(())
+}
+
+/// An 8-bit colour image read from a TIFF (for textures, not DEMs).
+pub(crate) struct Rgb8Tiff {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Row-major RGB, 3 bytes per pixel (gray is repeated, alpha dropped).
+    pub rgb: Vec<u8>,
+    /// The GeoTIFF georeference, if the file has one.
+    pub georef: Option<RawGeoref>,
+}
+
+/// The most pixels a colour TIFF may hold (2^30: 3 GiB of RGB).
+const MAX_COLOUR_PIXELS: usize = 1 << 30;
+
+/// Reads an 8-bit gray, RGB or RGBA TIFF (chunky, in strips or tiles, any
+/// compression the DEM reader takes) with its georeference.
+pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
+    let file = File::open(path).map_err(|e| io_error(path, e))?;
+    let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+    let mut dec =
+        Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
+    let err = |e: TiffError| tiff_error(path, e);
+    let (w, h) = dec.dimensions().map_err(err)?;
+    let (width, height) = (w as usize, h as usize);
+    if width.checked_mul(height).is_none_or(|n| n > MAX_COLOUR_PIXELS) {
+        return Err(unsupported(path, format!("{width} × {height} pixels is larger than terrachunk reads")));
+    }
+    let samples: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(err)?.unwrap_or(1);
+    let photometric: u16 = dec.find_tag_unsigned(Tag::PhotometricInterpretation).map_err(err)?.unwrap_or(1);
+    let planar: u16 = dec.find_tag_unsigned(Tag::PlanarConfiguration).map_err(err)?.unwrap_or(1);
+    let bits: Vec<u16> = dec.find_tag_unsigned_vec::<u16>(Tag::BitsPerSample).map_err(err)?.unwrap_or(vec![1]);
+    let compression: u16 = dec.find_tag_unsigned(Tag::Compression).map_err(err)?.unwrap_or(1);
+    let what = match (photometric, samples) {
+        (0 | 1, 1) => "gray",
+        (2, 3) => "RGB",
+        (2, 4) => "RGBA",
+        (3, _) => return Err(unsupported(path, "palette (colour-mapped) TIFF; a texture needs gray, RGB or RGBA")),
+        (6, _) => return Err(unsupported(path, "YCbCr TIFF; a texture needs gray, RGB or RGBA")),
+        (p, s) => {
+            return Err(unsupported(
+                path,
+                format!("TIFF with {s} samples per pixel (photometric {p}); a texture needs gray, RGB or RGBA"),
+            ));
+        }
+    };
+    if bits.iter().any(|&b| b != 8) {
+        return Err(unsupported(path, format!("{what} TIFF with {bits:?} bits per sample; textures need 8 bits")));
+    }
+    if planar != 1 {
+        return Err(unsupported(path, "planar (band-separate) TIFF; textures need interleaved samples"));
+    }
+    if !matches!(compression, 1 | 5 | 8 | 32946 | 32773) {
+        return Err(unsupported(
+            path,
+            format!("compression {compression}; terrachunk reads uncompressed, LZW, DEFLATE and PackBits TIFFs"),
+        ));
+    }
+    check_chunks_present(path, &mut dec, file_len, width, height)?;
+    let s = samples as usize;
+    let (cw, ch) = dec.chunk_dimensions();
+    let (cw, ch) = (cw as usize, ch as usize);
+    if cw == 0 || ch == 0 {
+        return Err(corrupt(path, format!("chunks of {cw} × {ch} pixels")));
+    }
+    let mut limits = tag_limits(file_len);
+    limits.decoding_buffer_size =
+        cw.min(width).saturating_mul(ch.min(height)).saturating_mul(s).saturating_add(1 << 16);
+    dec = dec.with_limits(limits);
+    let chunk_type = dec.get_chunk_type();
+    let (across, count) = match chunk_type {
+        ChunkType::Strip => (1, dec.strip_count().map_err(err)?),
+        ChunkType::Tile => (width.div_ceil(cw), dec.tile_count().map_err(err)?),
+    };
+    let mut rgb = vec![0u8; width * height * 3];
+    for idx in 0..count {
+        let (x0, y0) = match chunk_type {
+            ChunkType::Strip => (0, idx as usize * ch),
+            ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
+        };
+        if x0 >= width || y0 >= height {
+            continue;
+        }
+        let DecodingResult::U8(data) = dec.read_chunk(idx).map_err(err)? else {
+            return Err(corrupt(path, "8-bit samples decoded to another type"));
+        };
+        // The decoder crops edge tiles and the last strip to the image.
+        let (dw, dh) = (cw.min(width - x0), ch.min(height - y0));
+        let stride = dw;
+        if data.len() < dh * dw * s {
+            return Err(corrupt(path, format!("a chunk at pixel ({x0}, {y0}) decoded to fewer pixels than its size")));
+        }
+        for r in 0..dh {
+            for c in 0..dw {
+                let src = &data[(r * stride + c) * s..];
+                let dst = &mut rgb[((y0 + r) * width + x0 + c) * 3..][..3];
+                if s == 1 {
+                    dst.fill(src[0]);
+                } else {
+                    dst.copy_from_slice(&src[..3]);
+                }
+            }
+        }
+    }
+    dec = dec.with_limits(tag_limits(file_len));
+    let georef = raw_georef(path, &mut dec)?;
+    Ok(Rgb8Tiff { width, height, rgb, georef })
 }
 
 /// GeoKeyDirectory → the keys whose value is stored inline (all we need).

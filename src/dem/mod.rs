@@ -31,7 +31,7 @@ use crate::heightfield::Heightfield;
 mod asc;
 mod bt;
 mod exr;
-mod geotiff;
+pub(crate) mod geotiff;
 mod hgt;
 mod png;
 

@@ -1,7 +1,11 @@
 //! Write one chunk as a binary glTF 2.0 (.glb), per the output contract in
 //! DESIGN.md: y-up metres, one node with an f64 `translation`, chunk-local
 //! f32 positions, u16 indices reordered for the vertex cache and vertex fetch
-//! (meshoptimizer), and one "parent" morph target per primitive.
+//! (meshoptimizer), and one "parent" morph target per primitive. A textured
+//! chunk adds TEXCOORD_0 (the footprint onto its tile's texel centres; see
+//! `texture`), its tile as an image in a bufferView, a clamp-to-edge
+//! mipmapping sampler and a metallic 0 / roughness 1 material; without a
+//! texture the file is exactly what it was before textures existed.
 //!
 //! The JSON is built with `serde_json` directly rather than `gltf-json`'s
 //! builder types: the contract's extras (`role`, `targetNames`, the chunk
@@ -12,6 +16,7 @@ use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
+use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
 pub struct GlbContext<'a> {
@@ -34,8 +39,19 @@ pub fn chunk_origin(chunk: &Chunk) -> [f64; 3] {
     o
 }
 
-/// Encodes `chunk` as a .glb file.
-pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
+/// TEXCOORD for the world point `p` of a chunk with footprint `fp`, on an
+/// image of `texels`: the footprint's edges map to the edge texels' centres.
+pub fn texcoord(p: &[f64; 3], fp: ((u32, u32), (u32, u32)), spacing_m: [f64; 2], texels: [u32; 2]) -> [f32; 2] {
+    let ((x0, x1), (z0, z1)) = fp;
+    let along = |g: f64, a: u32, b: u32, n: u32| {
+        let n = f64::from(n);
+        ((0.5 + (n - 1.0) * (g - f64::from(a)) / f64::from(b - a)) / n) as f32
+    };
+    [along(p[0] / spacing_m[0], x0, x1, texels[0]), along(p[2] / spacing_m[1], z0, z1, texels[1])]
+}
+
+/// Encodes `chunk` (with its texture tile, if any) as a .glb file.
+pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext) -> Vec<u8> {
     let origin = chunk_origin(chunk);
     let mut bin: Vec<u8> = Vec::new();
     let mut views: Vec<Value> = Vec::new();
@@ -49,11 +65,35 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
         let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
         let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
         let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
-        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, &p.normals);
+        // With a normal map, the map carries the shading and the vertices
+        // fix its tangent frame to the map's axes (see `texture`).
+        let flat_frame = texture.is_some_and(|t| t.normal.is_some());
+        let up: Vec<[f32; 3]>;
+        let normals = if flat_frame {
+            up = vec![[0.0, 1.0, 0.0]; p.positions.len()];
+            &up
+        } else {
+            &p.normals
+        };
+        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, normals);
         let dlt = push_vec3(&mut bin, &mut views, &mut accessors, &delta);
         let idx = push_indices(&mut bin, &mut views, &mut accessors, &p.indices);
+        let mut attributes = json!({"POSITION": pos, "NORMAL": nrm});
+        if let Some(tex) = texture {
+            let uv = |img: &TileImage| -> Vec<[f32; 2]> {
+                p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
+            };
+            attributes["TEXCOORD_0"] = push_vec2(&mut bin, &mut views, &mut accessors, &uv(&tex.colour)).into();
+            if let Some(nm) = &tex.normal {
+                let east = vec![[1.0f32, 0.0, 0.0, 1.0]; p.positions.len()];
+                attributes["TANGENT"] = push_vec4(&mut bin, &mut views, &mut accessors, &east).into();
+                if nm.texels != tex.colour.texels {
+                    attributes["TEXCOORD_1"] = push_vec2(&mut bin, &mut views, &mut accessors, &uv(nm)).into();
+                }
+            }
+        }
         prims.push(json!({
-            "attributes": {"POSITION": pos, "NORMAL": nrm},
+            "attributes": attributes,
             "indices": idx,
             "material": 0,
             "mode": 4,
@@ -63,7 +103,7 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
     }
     let k = chunk.key;
     let ((x0, x1), (z0, z1)) = chunk.footprint;
-    let doc = json!({
+    let mut doc = json!({
         "asset": {"version": "2.0", "generator": ctx.generator},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
@@ -94,6 +134,38 @@ pub fn encode_glb(chunk: &Chunk, ctx: &GlbContext) -> Vec<u8> {
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
+    if let Some(tex) = texture {
+        let mut images = Vec::new();
+        for img in std::iter::once(&tex.colour).chain(&tex.normal) {
+            align4(&mut bin);
+            views.push(json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": img.bytes.len()}));
+            bin.extend_from_slice(&img.bytes);
+            images.push(json!({"bufferView": views.len() - 1, "mimeType": img.mime}));
+        }
+        let mut material = json!({
+            "name": "terrain",
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            "doubleSided": true,
+        });
+        if let Some(nm) = &tex.normal {
+            let set = u32::from(nm.texels != tex.colour.texels);
+            material["normalTexture"] = json!({"index": 1, "texCoord": set});
+        }
+        let texture_info =
+            |img: &TileImage| json!({"texels": img.texels, "texel_m": img.texel_m, "limited_by": img.limit});
+        let mut info = json!({"colour": texture_info(&tex.colour)});
+        if let Some(nm) = &tex.normal {
+            info["normal"] = texture_info(nm);
+        }
+        doc["nodes"][0]["extras"]["terrachunk"]["texture"] = info;
+        doc["materials"] = json!([material]);
+        doc["textures"] = (0..images.len()).map(|i| json!({"sampler": 0, "source": i})).collect();
+        doc["images"] = images.into();
+        // LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE.
+        doc["samplers"] = json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]);
+        doc["bufferViews"] = views.into();
+        doc["buffers"] = json!([{"byteLength": bin.len()}]);
+    }
     glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin)
 }
 
@@ -145,6 +217,31 @@ fn push_vec3(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Valu
         "bufferView": views.len() - 1, "componentType": 5126, "count": data.len(),
         "type": "VEC3", "min": min, "max": max,
     }));
+    accessors.len() - 1
+}
+
+fn push_vec2(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, data: &[[f32; 2]]) -> usize {
+    align4(bin);
+    let offset = bin.len();
+    for v in data {
+        bin.extend_from_slice(&v[0].to_le_bytes());
+        bin.extend_from_slice(&v[1].to_le_bytes());
+    }
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len() * 8, "target": 34962}));
+    accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126, "count": data.len(), "type": "VEC2"}));
+    accessors.len() - 1
+}
+
+fn push_vec4(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, data: &[[f32; 4]]) -> usize {
+    align4(bin);
+    let offset = bin.len();
+    for v in data {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len() * 16, "target": 34962}));
+    accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126, "count": data.len(), "type": "VEC4"}));
     accessors.len() - 1
 }
 

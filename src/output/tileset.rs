@@ -4,7 +4,7 @@
 //! x when loading it (3D Tiles 1.1, "glTF transforms"), so a world point
 //! (x, y, z) of a chunk sits at (x, −z, y) in tileset coordinates: east,
 //! north, up. Bounding boxes are given in that frame. What 3D Tiles does not
-//! carry (levels, morph, skirts, τ_max) goes into `extras.terrachunk`, whose
+//! carry (levels, morph, skirts, τ_max, texture sizing) goes into `extras.terrachunk`, whose
 //! shape is the types below and whose JSON Schemas in `schemas/` are
 //! generated from them.
 
@@ -14,6 +14,7 @@ use serde_json::{Value, json};
 
 use crate::heightfield::Georef;
 use crate::quadtree::{ChunkKey, ChunkTree};
+use crate::texture::TextureExtras;
 
 /// `extras.terrachunk` on the tileset: what a client needs beyond 3D Tiles.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -43,6 +44,10 @@ pub struct TilesetExtras {
     pub morph: MorphConvention,
     /// How deep the skirts hang.
     pub skirt: String,
+    /// How the texture tiles were made and what bounds them (absent when
+    /// the chunks are untextured).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureExtras>,
 }
 
 /// Grid size in samples.
