@@ -167,7 +167,7 @@ fn a_capped_level_is_reported_and_verify_counts_it_as_the_stated_exception() {
         "--max-error",
         "2",
         "--max-texture-px",
-        "64",
+        "16",
     ]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success() && text.contains("max_texture_px caps them") && text.contains("T_g"), "{text}");
