@@ -18,7 +18,7 @@ fn main() {
     let max_error: f64 = args[2].parse().expect("MAX_ERROR_M");
     let hf = load(&[dem], &LoadOptions::default()).expect("loads");
     let filled = void_fill(&hf);
-    let grid = Grid { width: hf.width, height: hf.height, heights: &hf.heights, filled: filled.as_deref() };
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let t = Instant::now();
     let spec = ChunkSpec {
         key: ChunkKey { level: 0, x: 0, y: 0 },

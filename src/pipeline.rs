@@ -260,7 +260,7 @@ type Built = (Report, ChunkTree, Vec<TileRecord>, Option<TextureExtras>, [Durati
 fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
     let t = Instant::now();
     let filled = void_fill(hf);
-    let grid = Grid { width: hf.width, height: hf.height, heights: &hf.heights, filled: filled.as_deref() };
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let t_plan = t.elapsed();
     let t = Instant::now();
     let colour = match &opts.texture {

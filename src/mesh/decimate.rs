@@ -45,6 +45,21 @@ pub struct Grid<'a> {
     pub heights: &'a [f32],
     /// Same layout with voids filled, if the DEM has any.
     pub filled: Option<&'a [f32]>,
+    /// Largest minus smallest valid height of the whole grid, metres: the
+    /// f32 margin of the border lines, which neighbours must agree on.
+    pub relief_m: f64,
+}
+
+impl<'a> Grid<'a> {
+    /// A grid over `heights` (row-major, NaN = nodata), with its relief.
+    pub fn new(width: usize, height: usize, heights: &'a [f32], filled: Option<&'a [f32]>) -> Self {
+        let (lo, hi) = heights
+            .iter()
+            .filter(|h| !h.is_nan())
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
+        let relief_m = if hi >= lo { f64::from(hi) - f64::from(lo) } else { 0.0 };
+        Grid { width, height, heights, filled, relief_m }
+    }
 }
 
 impl Grid<'_> {
@@ -138,17 +153,20 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // Steps 1 and 3a: the parent's triangles, cut along the dividing lines.
     let mut tin = initial_tin(grid, spec, mx, mz);
 
-    // Steps 2 and 3b: borders, then dividing lines, refined in 1-D.
+    // Steps 2 and 3b: borders, then dividing lines, refined in 1-D. Their
+    // target takes its f32 margin from the whole grid's relief, not the
+    // chunk's: the chunks on either side of a line must decide it alike.
+    let line_target = build_target(spec.delta_m, grid.grid.relief_m.max(relief));
     for (vertical, coord, span) in
         [(false, z0, (x0, x1)), (false, z1, (x0, x1)), (true, x0, (z0, z1)), (true, x1, (z0, z1))]
     {
-        refine_line(&mut tin, grid, vertical, coord, span, target, nested);
+        refine_line(&mut tin, grid, vertical, coord, span, line_target, nested);
     }
     if let Some(mx) = mx {
-        refine_line(&mut tin, grid, true, mx, (z0, z1), target, nested);
+        refine_line(&mut tin, grid, true, mx, (z0, z1), line_target, nested);
     }
     if let Some(mz) = mz {
-        refine_line(&mut tin, grid, false, mz, (x0, x1), target, nested);
+        refine_line(&mut tin, grid, false, mz, (x0, x1), line_target, nested);
     }
     let mut dirty = Vec::new();
     tin.take_dirty(&mut dirty);
