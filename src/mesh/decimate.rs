@@ -31,6 +31,7 @@ use robust::Coord;
 
 use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex};
+use crate::morph::SurfaceLocator;
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
@@ -792,6 +793,7 @@ fn finish(grid: &Window, spec: &ChunkSpec, tin: &Tin, lines: &Lines, scans: &[Sc
     let mut triangles = Vec::with_capacity(n);
     let mut kept = Vec::with_capacity(n);
     let mut max_err: f64 = 0.0;
+    let mut parent_locator = None;
     for t in 0..n as u32 {
         let tri = tin.corners(t);
         // A triangle's last scan still holds unless a corner is a cut point:
@@ -817,7 +819,18 @@ fn finish(grid: &Window, spec: &ChunkSpec, tin: &Tin, lines: &Lines, scans: &[Sc
         kept.push(match any {
             Some(Coverage::Valid) => true,
             Some(Coverage::NodataOnly) => false,
-            _ => cell_has_data(grid, &tri),
+            // Over voids, a child must not draw where its parent does not
+            // (it would pop in and out with the level): such a triangle lies
+            // inside one parent triangle, and is written if that one is.
+            _ => match (spec.parent, grid.grid.filled.is_some()) {
+                (Some(p), true) => {
+                    let loc =
+                        parent_locator.get_or_insert_with(|| SurfaceLocator::from_parts(&p.vertices, &p.triangles));
+                    let (cx, cz) = ((tri[0].x + tri[1].x + tri[2].x) / 3.0, (tri[0].z + tri[1].z + tri[2].z) / 3.0);
+                    loc.locate(cx, cz, 1e-6).is_some_and(|(pt, _)| p.kept[pt as usize])
+                }
+                _ => cell_has_data(grid, &tri),
+            },
         });
     }
     ChunkMesh {
