@@ -12,11 +12,9 @@ use std::path::{Path, PathBuf};
 use terrachunk::dem::{DemError, LoadOptions, load};
 use terrachunk::heightfield::{Crs, Heightfield};
 
-// ---------------------------------------------------------------- helpers
+use crate::common::fixture;
 
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
-}
+// ---------------------------------------------------------------- helpers
 
 fn load1(path: &Path) -> Result<Heightfield, DemError> {
     load(&[path.to_path_buf()], &LoadOptions::default())

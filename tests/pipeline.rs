@@ -1,90 +1,21 @@
 //! End to end: real fixtures and tiny exact grids through `build`, then
 //! `verify` (independent re-measurement), the Khronos glTF validator, the
 //! extras' JSON Schemas, determinism across thread counts, and bad input.
+//! The hard cases (flat ground, spikes, cliffs, noise, ...) live in
+//! `hard_cases`; the helpers shared with it in `common`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use serde_json::Value;
 use terrachunk::config::Config;
 use terrachunk::output::tileset::extras_schemas;
-use terrachunk::pipeline::{BuildOptions, Report, build};
-use terrachunk::verify::{VerifyReport, verify};
+use terrachunk::pipeline::build;
+use terrachunk::verify::verify;
 
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
-}
-
-fn options(dem: &Path, out: &Path, max_error_m: f64, threads: usize) -> BuildOptions {
-    BuildOptions {
-        inputs: vec![dem.to_path_buf()],
-        out: out.to_path_buf(),
-        force: false,
-        config: Config { max_error_m, threads, ..Config::default() },
-        progress: false,
-    }
-}
-
-fn build_ok(dem: &Path, max_error_m: f64) -> (tempfile::TempDir, PathBuf, Report) {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("out");
-    let report = build(&options(dem, &out, max_error_m, 0)).unwrap_or_else(|e| panic!("{}: {e}", dem.display()));
-    (tmp, out, report)
-}
-
-fn verified(out: &Path) -> VerifyReport {
-    let r = verify(out, None).unwrap();
-    assert!(r.failures.is_empty(), "verify failed for {}:\n{}", out.display(), r.failures.join("\n"));
-    r
-}
-
-/// Runs the Khronos glTF validator (npm `gltf-validator`) over every .glb.
-fn khronos_validate(out: &Path) -> Value {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    assert!(
-        root.join("node_modules/gltf-validator").exists(),
-        "the Khronos glTF validator is not installed: run `npm ci` in {}",
-        root.display()
-    );
-    let o = Command::new("node").arg(root.join("tests/tools/validate_gltf.js")).arg(out).output().expect("node runs");
-    assert!(o.status.success(), "validator failed: {}", String::from_utf8_lossy(&o.stderr));
-    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["errors"], 0, "glTF validator errors: {}", v["messages"]);
-    v
-}
-
-fn tileset(out: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("tileset.json")).unwrap()).unwrap()
-}
-
-fn write_asc(dir: &Path, name: &str, w: usize, h: usize, f: impl Fn(usize, usize) -> f64) -> PathBuf {
-    let mut s = format!("ncols {w}\nnrows {h}\nxllcorner 0\nyllcorner 0\ncellsize 10\nNODATA_value -9999\n");
-    for i in 0..h {
-        let row: Vec<String> = (0..w).map(|j| f(i, j).to_string()).collect();
-        s += &row.join(" ");
-        s += "\n";
-    }
-    let p = dir.join(name);
-    std::fs::write(&p, s).unwrap();
-    p
-}
-
-fn all_files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use crate::common::{
+    all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, options, tileset, verified, write_asc,
+};
 
 // ---------------------------------------------------------------- real data
 
@@ -194,43 +125,6 @@ fn three_by_three_grid_keeps_its_one_bump() {
     assert_eq!(r.levels[0].vertices, 5);
     assert_eq!(r.levels[0].triangles, 4);
     assert_eq!(r.levels[0].max_error_m, 0.0);
-}
-
-#[test]
-fn flat_ground_ends_shallow() {
-    let tmp = tempfile::tempdir().unwrap();
-    for (name, h) in [("zero.asc", 0.0), ("everest.asc", 8848.0)] {
-        let dem = write_asc(tmp.path(), name, 257, 257, |_, _| h);
-        let out = tmp.path().join(name).with_extension("out");
-        let r = build(&options(&dem, &out, 0.1, 0)).unwrap();
-        verified(&out);
-        assert_eq!(r.levels.len(), 1, "{name}: a flat grid is one leaf chunk");
-        assert!(r.levels[0].triangles <= 8, "{name}: {} triangles", r.levels[0].triangles);
-    }
-}
-
-#[test]
-fn single_spike_is_kept_exactly_and_skirts_reach_below_it() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dem = write_asc(tmp.path(), "spike.asc", 101, 101, |i, j| if (i, j) == (37, 61) { 10_000.0 } else { 100.0 });
-    let out = tmp.path().join("out");
-    let r = build(&options(&dem, &out, 1.0, 0)).unwrap();
-    let v = verified(&out);
-    assert!(v.levels.values().all(|l| l.max_error_m <= l.delta_m));
-    assert_eq!(r.levels.last().unwrap().max_error_m, 0.0, "the spike and the plane are exact at the leaf");
-}
-
-#[test]
-fn cliff_along_a_diagonal_and_a_chunk_border() {
-    let tmp = tempfile::tempdir().unwrap();
-    let diag = write_asc(tmp.path(), "diag.asc", 301, 301, |i, j| if i + j > 300 { 500.0 } else { 0.0 });
-    let border = write_asc(tmp.path(), "border.asc", 301, 301, |_, j| if j >= 150 { 500.0 } else { 0.0 });
-    for dem in [diag, border] {
-        let out = dem.with_extension("out");
-        build(&options(&dem, &out, 0.5, 0)).unwrap();
-        verified(&out);
-        khronos_validate(&out);
-    }
 }
 
 // ------------------------------------------------------------ the contract
@@ -358,25 +252,6 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
 }
 
 // ------------------------------------------------------------ the command line
-
-fn cli(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_terrachunk")).args(args).output().unwrap()
-}
-
-fn assert_bad_input(args: &[&str], out: &Path, says: &str) {
-    let o = cli(args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-    assert!(err.contains(says), "{args:?}: expected {says:?} in {err}");
-    assert!(!out.exists(), "{args:?} left {}", out.display());
-    let parent = out.parent().unwrap();
-    let leftovers: Vec<_> = std::fs::read_dir(parent)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_string_lossy().contains("terrachunk-tmp"))
-        .collect();
-    assert!(leftovers.is_empty(), "temporary directory left behind");
-}
 
 #[test]
 fn bad_input_exits_2_names_the_problem_and_writes_nothing() {
