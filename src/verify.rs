@@ -441,11 +441,22 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
         .filter(|(_, dy)| *dy != 0.0)
         .collect();
     for (v, dy) in cv.iter().copied().zip(c.surface.morph_dy.iter().copied()).chain(skirt_tops) {
-        match loc.locate(v.x, v.z, round_grid) {
-            Some((t, h)) => {
+        // The vertex truly lies in one of the parent triangles within the
+        // rounding of where it was read; the one that explains its target
+        // best decides (on a crease, the triangle it was read into may be
+        // the neighbour of the one it is on).
+        let best = loc
+            .near(v.x, v.z, round_grid)
+            .into_iter()
+            .map(|(t, h)| {
                 let g = (v.h + dy - h).abs();
+                (g - allowed(t), g)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        match best {
+            Some((excess, g)) => {
                 gap = gap.max(g);
-                worst_excess = worst_excess.max(g - allowed(t));
+                worst_excess = worst_excess.max(excess);
             }
             None => missing += 1,
         }
