@@ -5,3 +5,4 @@ mod common;
 mod dem;
 mod hard_cases;
 mod pipeline;
+mod properties;
