@@ -75,24 +75,27 @@ impl<'m> SurfaceLocator<'m> {
         }
         inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= tol.max(1e-6)).map(|n| (n.1, n.2)))
     }
-}
 
-impl SurfaceLocator<'_> {
-    /// Every triangle that contains (x, z) or lies within `tol` grid units of
-    /// it, with the interpolated height there: where the parent has slivers
-    /// narrower than the rounding of the files, a point cannot be placed in
-    /// one of them, and each is a fair answer.
-    pub fn candidates(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
+    /// Every triangle within `tol` grid units of (x, z), those containing it
+    /// included, each with its plane's height there. A point read back with
+    /// rounding `tol` truly lies in one of them (on a crease, not
+    /// necessarily the one [`Self::locate`] picks).
+    pub fn near(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
+        let tol = tol.max(1e-6);
         let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
-        let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
-        bucket
-            .iter()
-            .filter_map(|&t| {
-                let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-                let (outside, h) = barycentric(&a, &p, &q, x, z);
-                (outside <= tol.max(1e-6)).then_some((t, h))
-            })
-            .collect()
+        let mut found: Vec<(u32, f64)> = Vec::new();
+        for bz in b(z - tol, self.origin.1, self.nz)..=b(z + tol, self.origin.1, self.nz) {
+            for bx in b(x - tol, self.origin.0, self.nx)..=b(x + tol, self.origin.0, self.nx) {
+                for &t in &self.buckets[bz * self.nx + bx] {
+                    let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+                    let (outside, h) = barycentric(&a, &p, &q, x, z);
+                    if outside <= tol && !found.iter().any(|f| f.0 == t) {
+                        found.push((t, h));
+                    }
+                }
+            }
+        }
+        found
     }
 }
 
@@ -118,4 +121,32 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
         ((x - p.x - t * dx).powi(2) + (z - p.z - t * dz).powi(2)).sqrt()
     };
     (seg(a, b).min(seg(b, c)).min(seg(c, a)), h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, z: f64, h: f64) -> MeshVertex {
+        MeshVertex { x, z, h, ph: h }
+    }
+
+    /// A crease: a flat triangle beside a steep one along x = 1. A point read
+    /// back a hair inside the flat one may truly lie on the steep one's side;
+    /// `near` offers both, `locate` only the one it falls in.
+    #[test]
+    fn near_offers_both_sides_of_a_crease_within_the_rounding() {
+        let verts = [v(0.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(1.0, 1.0, 0.0), v(2.0, 0.5, 100.0)];
+        let tris = [[0, 1, 2], [1, 3, 2]];
+        let loc = SurfaceLocator::from_parts(&verts, &tris);
+        let (x, z) = (1.0 - 1e-7, 0.5);
+        assert_eq!(loc.locate(x, z, 1e-6).map(|t| t.0), Some(0));
+        let mut near = loc.near(x, z, 1e-6);
+        near.sort_by_key(|n| n.0);
+        assert_eq!(near.iter().map(|n| n.0).collect::<Vec<_>>(), vec![0, 1]);
+        // The steep plane extrapolated a hair outside: 100 m per unit × 1e-7.
+        assert!(near[0].1.abs() < 1e-12 && (near[1].1 + 1e-5).abs() < 1e-9, "{near:?}");
+        // Further than the rounding, only the flat triangle.
+        assert_eq!(loc.near(0.9, 0.5, 1e-6).iter().map(|n| n.0).collect::<Vec<_>>(), vec![0]);
+    }
 }

@@ -62,6 +62,24 @@ pub enum BuildError {
     /// The texture image could not be used, or a tile could not be encoded.
     #[error(transparent)]
     Texture(#[from] TextureError),
+    /// The mesher returned a chunk farther from a sample than its δ: a bug,
+    /// refused rather than written as a tileset that breaks its promise.
+    #[error(
+        "chunk {level}/{x}/{y}: the mesher left a sample {error_m} m from the surface, beyond the chunk's \
+         δ {delta_m} m (a terrachunk bug: please report it with the DEM and settings)"
+    )]
+    MissedDelta {
+        /// Level.
+        level: u32,
+        /// Column.
+        x: u32,
+        /// Row.
+        y: u32,
+        /// What the mesher measured, metres.
+        error_m: f64,
+        /// δ(L), metres.
+        delta_m: f64,
+    },
     /// Writing failed.
     #[error("{path}: {source}")]
     Io {
@@ -79,7 +97,7 @@ impl BuildError {
             BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
             BuildError::Texture(TextureError::Encode { .. }) => 1,
             BuildError::Texture(_) => 2,
-            BuildError::Mesh(_) | BuildError::Io { .. } => 1,
+            BuildError::Mesh(_) | BuildError::MissedDelta { .. } | BuildError::Io { .. } => 1,
         }
     }
 }
@@ -538,6 +556,15 @@ impl Run<'_> {
             dividing_lines: tree.splits(level),
         };
         let mesh = build_chunk(grid, &spec)?;
+        if mesh.max_error_m > delta {
+            return Err(BuildError::MissedDelta {
+                level: key.level,
+                x: key.x,
+                y: key.y,
+                error_m: mesh.max_error_m,
+                delta_m: delta,
+            });
+        }
         Timers::add(&timers.mesh, t);
         let t = Instant::now();
         let margin = tree.delta_m[(level as usize).saturating_sub(2)];

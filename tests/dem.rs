@@ -12,11 +12,9 @@ use std::path::{Path, PathBuf};
 use terrachunk::dem::{DemError, LoadOptions, load};
 use terrachunk::heightfield::{Crs, Heightfield};
 
-// ---------------------------------------------------------------- helpers
+use crate::common::fixture;
 
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
-}
+// ---------------------------------------------------------------- helpers
 
 fn load1(path: &Path) -> Result<Heightfield, DemError> {
     load(&[path.to_path_buf()], &LoadOptions::default())
@@ -579,10 +577,64 @@ fn infinite_heights_are_invalid() {
     let p = write_asc(dir.path(), "inf.asc", "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 inf\n3 4\n");
     assert_fails(load1(&p), "Invalid", "inf.asc", "1 samples are infinite");
 
-    // A vertical scale that overflows f32 is caught too.
+    // A vertical scale that overflows f32 is caught too, and says so.
     let opts = LoadOptions { vertical_scale: Some(1e38), ..Default::default() };
     let r = load(&[fixture("dfw_texas_srtm3.tif")], &opts);
-    assert_fails(r, "Invalid", "dfw_texas_srtm3.tif", "samples are infinite");
+    assert_fails(r, "Invalid", "dfw_texas_srtm3.tif", "is beyond the range of a 32-bit float height");
+}
+
+/// Heights are held as f32. Far from 0 a value finer than f32 can hold
+/// there (1e6 m with centimetre relief: f32 steps are 6.25 cm) used to be
+/// flattened without a word; now the load says which value and why.
+#[test]
+fn heights_f32_cannot_hold_within_a_millimetre_are_refused() {
+    use tiff::encoder::{TiffEncoder, colortype};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let head = "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+    let p = write_asc(d, "offset.asc", &format!("{head}1000000 1000000.01\n1000000 1000000\n"));
+    assert_fails(load1(&p), "Invalid", "offset.asc", "line 6: 1000000.01 would be stored as 1000000");
+    let p = write_asc(d, "huge.asc", &format!("{head}1 1e39\n3 4\n"));
+    assert_fails(load1(&p), "Invalid", "huge.asc", "line 6: 1e39 is beyond the range of a 32-bit float height");
+    // What f32 does hold passes: Mars' highest peak to the centimetre, and
+    // 1e6 m in f32's own 1/16 m steps.
+    let p = write_asc(d, "mars.asc", &format!("{head}21229.51 -8200.33\n1000000.0625 1000000\n"));
+    assert_eq!(ok(&p).heights, vec![21229.51, -8200.33, 1_000_000.06, 1_000_000.0]);
+
+    let p = d.join("f64.tif");
+    let data = [1e6, 1e6, 1e6, 1e6 + 0.01, 1e6, 1e6];
+    TiffEncoder::new(std::fs::File::create(&p).unwrap())
+        .unwrap()
+        .write_image::<colortype::Gray64Float>(3, 2, &data)
+        .unwrap();
+    assert_fails(load1(&p), "Invalid", "f64.tif", "sample (row 1, column 0): 1000000.01 would be stored as 1000000");
+    let p = d.join("i32.tif");
+    let data = [0, 16_777_216, -16_777_216, 20_000_001];
+    TiffEncoder::new(std::fs::File::create(&p).unwrap())
+        .unwrap()
+        .write_image::<colortype::GrayI32>(2, 2, &data)
+        .unwrap();
+    assert_fails(load1(&p), "Invalid", "i32.tif", "sample (row 1, column 1): 20000001 would be stored as 20000000");
+
+    let edges = [0.0, 2.0, 0.0, 2.0];
+    let p = d.join("i32.bt");
+    std::fs::write(&p, bt_bytes(2, 2, 4, false, 1, 0, 6326, edges, 1.0, &[1.0, 2.0, 3.0, 20_000_001.0])).unwrap();
+    assert_fails(load1(&p), "Invalid", "i32.bt", "sample (row 1, column 1): 20000001 would be stored as 20000000");
+}
+
+/// A text grid declares its nodata value; a NaN anywhere else is a broken
+/// export and is refused, not turned into a hole.
+#[test]
+fn asc_nan_is_nodata_only_when_declared() {
+    let dir = tempfile::tempdir().unwrap();
+    let head = "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+    let p = write_asc(dir.path(), "a.asc", &format!("{head}NODATA_value -9999\n1 2\nnan 4\n"));
+    assert_fails(load1(&p), "Invalid", "a.asc", "line 8: \"nan\" is not a height (NODATA_value is -9999)");
+    let p = write_asc(dir.path(), "b.asc", &format!("{head}1 NaN\n3 4\n"));
+    assert_fails(load1(&p), "Invalid", "b.asc", "line 6: \"NaN\" is not a height (NODATA_value is not declared)");
+    let p = write_asc(dir.path(), "c.asc", &format!("{head}NODATA_value nan\n1 2\nnan 4\n"));
+    let hf = ok(&p);
+    assert!(hf.heights[2].is_nan() && hf.valid_count() == 3);
 }
 
 #[test]

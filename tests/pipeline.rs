@@ -1,6 +1,8 @@
 //! End to end: real fixtures and tiny exact grids through `build`, then
 //! `verify` (independent re-measurement), the Khronos glTF validator, the
 //! extras' JSON Schemas, determinism across thread counts, and bad input.
+//! The hard cases (flat ground, spikes, cliffs, noise, ...) live in
+//! `hard_cases`; the helpers shared with it in `common`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -12,7 +14,8 @@ use terrachunk::pipeline::build;
 use terrachunk::verify::verify;
 
 use crate::common::{
-    all_files, build_ok, fixture, khronos_validate, options, rewrite_glb, tileset, verified, write_asc,
+    all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, options, rewrite_glb, tileset, verified,
+    write_asc,
 };
 
 // ---------------------------------------------------------------- real data
@@ -123,43 +126,6 @@ fn three_by_three_grid_keeps_its_one_bump() {
     assert_eq!(r.levels[0].vertices, 5);
     assert_eq!(r.levels[0].triangles, 4);
     assert_eq!(r.levels[0].max_error_m, 0.0);
-}
-
-#[test]
-fn flat_ground_ends_shallow() {
-    let tmp = tempfile::tempdir().unwrap();
-    for (name, h) in [("zero.asc", 0.0), ("everest.asc", 8848.0)] {
-        let dem = write_asc(tmp.path(), name, 257, 257, |_, _| h);
-        let out = tmp.path().join(name).with_extension("out");
-        let r = build(&options(&dem, &out, 0.1, 0)).unwrap();
-        verified(&out);
-        assert_eq!(r.levels.len(), 1, "{name}: a flat grid is one leaf chunk");
-        assert!(r.levels[0].triangles <= 8, "{name}: {} triangles", r.levels[0].triangles);
-    }
-}
-
-#[test]
-fn single_spike_is_kept_exactly_and_skirts_reach_below_it() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dem = write_asc(tmp.path(), "spike.asc", 101, 101, |i, j| if (i, j) == (37, 61) { 10_000.0 } else { 100.0 });
-    let out = tmp.path().join("out");
-    let r = build(&options(&dem, &out, 1.0, 0)).unwrap();
-    let v = verified(&out);
-    assert!(v.levels.values().all(|l| l.max_error_m <= l.delta_m));
-    assert_eq!(r.levels.last().unwrap().max_error_m, 0.0, "the spike and the plane are exact at the leaf");
-}
-
-#[test]
-fn cliff_along_a_diagonal_and_a_chunk_border() {
-    let tmp = tempfile::tempdir().unwrap();
-    let diag = write_asc(tmp.path(), "diag.asc", 301, 301, |i, j| if i + j > 300 { 500.0 } else { 0.0 });
-    let border = write_asc(tmp.path(), "border.asc", 301, 301, |_, j| if j >= 150 { 500.0 } else { 0.0 });
-    for dem in [diag, border] {
-        let out = dem.with_extension("out");
-        build(&options(&dem, &out, 0.5, 0)).unwrap();
-        verified(&out);
-        khronos_validate(&out);
-    }
 }
 
 // ------------------------------------------------------------ the contract
@@ -346,25 +312,6 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
 }
 
 // ------------------------------------------------------------ the command line
-
-fn cli(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_terrachunk")).args(args).output().unwrap()
-}
-
-fn assert_bad_input(args: &[&str], out: &Path, says: &str) {
-    let o = cli(args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-    assert!(err.contains(says), "{args:?}: expected {says:?} in {err}");
-    assert!(!out.exists(), "{args:?} left {}", out.display());
-    let parent = out.parent().unwrap();
-    let leftovers: Vec<_> = std::fs::read_dir(parent)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_string_lossy().contains("terrachunk-tmp"))
-        .collect();
-    assert!(leftovers.is_empty(), "temporary directory left behind");
-}
 
 #[test]
 fn bad_input_exits_2_names_the_problem_and_writes_nothing() {

@@ -1,6 +1,9 @@
-//! The one integration-test binary: each stage has its own module.
+//! The one integration-test binary: each stage has its own module, and
+//! `common` holds the helpers they share.
 
 mod common;
 mod dem;
+mod hard_cases;
 mod pipeline;
+mod properties;
 mod texture;

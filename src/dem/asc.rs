@@ -7,10 +7,14 @@
 //! unless a `.prj` beside it describes a geographic one (`GEOGCS` without
 //! `PROJCS`), in which case the cell size is degrees and the grid goes
 //! through the local tangent plane.
+//!
+//! A value equal to `NODATA_value` is nodata. `NaN` is nodata only when the
+//! header says so (`NODATA_value nan`); anywhere else it is refused, as is a
+//! value `f32` cannot hold within 1 mm (see [`super::MAX_ROUNDING_M`]).
 
 use std::path::Path;
 
-use super::{DemError, corrupt, file_name, io_error, sample_count};
+use super::{DemError, check_stored, corrupt, file_name, invalid, io_error, sample_count};
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 #[derive(Default)]
@@ -99,9 +103,28 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
             let v: f32 =
                 token.parse().map_err(|_| corrupt(path, format!("line {}: {token:?} is not a number", i + 1)))?;
             found += 1;
-            if found <= expected {
-                heights.push(if Some(v) == header.nodata { f32::NAN } else { v });
+            if found > expected {
+                continue;
             }
+            if Some(v) == header.nodata {
+                heights.push(f32::NAN);
+                continue;
+            }
+            if v.is_nan() && !header.nodata.is_some_and(f32::is_nan) {
+                // Text declares its nodata; a NaN is a broken export, not a hole.
+                let declared = header.nodata.map_or("not declared".to_string(), |n| n.to_string());
+                return Err(invalid(
+                    path,
+                    format!("line {}: {token:?} is not a height (NODATA_value is {declared})", i + 1),
+                ));
+            }
+            if v.abs() >= 32_768.0 {
+                // Far from 0 the nearest f32 may be more than 1 mm off (or
+                // infinite where the text is merely large).
+                let exact: f64 = token.parse().expect("a token that parses as f32 parses as f64");
+                check_stored(exact, v).map_err(|e| invalid(path, format!("line {}: {e}", i + 1)))?;
+            }
+            heights.push(v);
         }
     }
     if found != expected {

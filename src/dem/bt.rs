@@ -13,7 +13,7 @@
 
 use std::path::Path;
 
-use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
+use super::{DemError, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 const HEADER: usize = 256;
@@ -119,7 +119,12 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
             }
             Sample::I32 => {
                 let v = i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                if v == NODATA { f32::NAN } else { (f64::from(v) * f64::from(vertical)) as f32 }
+                if v == NODATA {
+                    f32::NAN
+                } else {
+                    to_height(f64::from(v) * f64::from(vertical))
+                        .map_err(|e| invalid(path, format!("sample (row {row}, column {col}): {e}")))?
+                }
             }
             Sample::F32 => {
                 let v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);

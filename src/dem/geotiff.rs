@@ -9,7 +9,10 @@
 //! (1024), raster type (1025: PixelIsArea puts the tie point on a pixel's
 //! corner, PixelIsPoint on its centre), the EPSG codes (2048, 3072) and the
 //! projected linear unit (3076). Nodata is GDAL's ASCII tag GDAL_NODATA
-//! (42113). A TIFF without GeoKeys is a plain grid with 1 m spacing.
+//! (42113); a float NaN is nodata whether declared or not (GDAL's
+//! convention). Samples wider than `f32` (32/64-bit integers, float64) must
+//! fit it within 1 mm (see `super::MAX_ROUNDING_M`). A TIFF without GeoKeys
+//! is a plain grid with 1 m spacing.
 //!
 //! The same tags place an 8-bit gray/RGB(A) TIFF used as a texture
 //! ([`load_rgb8`]); the DEM reader itself refuses colour images.
@@ -27,7 +30,7 @@ use tiff::TiffError;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 
-use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
+use super::{DemError, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 /// GeoKey ids (GeoTIFF 1.1, section 7).
@@ -312,6 +315,25 @@ fn place(
         }
         true
     }
+    // Samples wider than f32 (32/64-bit integers, float64) must fit it within
+    // 1 mm (see `super::MAX_ROUNDING_M`); nodata is exempt.
+    fn check_wide<T: Copy + PartialEq>(
+        path: &Path,
+        src: &[T],
+        dw: usize,
+        dh: usize,
+        (x0, y0): (usize, usize),
+        nodata: Option<T>,
+        wide: impl Fn(T) -> f64,
+    ) -> Result<(), DemError> {
+        for (k, &v) in src.iter().take(dw * dh).enumerate() {
+            if Some(v) != nodata {
+                to_height(wide(v))
+                    .map_err(|e| invalid(path, format!("sample (row {}, column {}): {e}", y0 + k / dw, x0 + k % dw)))?;
+            }
+        }
+        Ok(())
+    }
     // Integer nodata is compared exactly in the sample's own type; a value
     // that the type cannot hold never matches.
     macro_rules! int {
@@ -319,6 +341,9 @@ fn place(
             let nd: Option<$t> = nodata.and_then(|v| {
                 if v.fract() == 0.0 && v >= <$t>::MIN as f64 && v <= <$t>::MAX as f64 { Some(v as $t) } else { None }
             });
+            if std::mem::size_of::<$t>() >= 4 {
+                check_wide(path, &$src, dw, dh, (x0, y0), nd, |v: $t| v as f64)?;
+            }
             match nd {
                 Some(nd) => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| if v == nd { f32::NAN } else { v as f32 }),
                 None => copy(dst, width, x0, y0, dw, dh, &$src, |v: $t| v as f32),
@@ -340,6 +365,7 @@ fn place(
         DecodingResult::F32(s) => copy(dst, width, x0, y0, dw, dh, &s, float),
         DecodingResult::F64(s) => {
             let nd = nodata;
+            check_wide(path, &s, dw, dh, (x0, y0), nd, |v| v)?;
             copy(dst, width, x0, y0, dw, dh, &s, |v: f64| if Some(v) == nd { f32::NAN } else { v as f32 })
         }
     };

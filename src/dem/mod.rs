@@ -116,6 +116,67 @@ pub(crate) fn invalid(path: &Path, what: impl Into<String>) -> DemError {
     DemError::Invalid { path: path.to_path_buf(), what: what.into() }
 }
 
+/// The most a stored height may differ from the file's value, metres.
+///
+/// Heights are held as `f32`. Within ±32 768 m its rounding stays below
+/// 1 mm, so no terrain on Earth (or Mars) comes near this; a file whose
+/// values are far from 0 *and* finer than `f32` can hold there (1e6 m with
+/// centimetre relief, where `f32` steps are 6.25 cm) would otherwise be
+/// flattened without a word, so it is refused instead.
+pub(crate) const MAX_ROUNDING_M: f64 = 1e-3;
+
+/// A finite source value that no `f32` height holds within
+/// [`MAX_ROUNDING_M`].
+#[derive(Debug)]
+pub(crate) struct Lossy {
+    value: f64,
+    stored: f32,
+}
+
+impl std::fmt::Display for Lossy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Plain digits where they are readable, scientific beyond.
+        let show = |v: f64| if v.abs() < 1e15 { v.to_string() } else { format!("{v:e}") };
+        if self.stored.is_infinite() {
+            return write!(f, "{} is beyond the range of a 32-bit float height (±3.4e38)", show(self.value));
+        }
+        let next = f32::from_bits(self.stored.to_bits() + 1);
+        let step = (f64::from(next) - f64::from(self.stored)).abs();
+        write!(
+            f,
+            "{} would be stored as {}: heights are held as 32-bit floats, which near {:.0e} m have steps \
+             of {step} m; subtract a constant from the heights so they lie nearer 0 (within ±32 768 m \
+             they are held to 1 mm)",
+            show(self.value),
+            show(f64::from(self.stored)),
+            self.value
+        )
+    }
+}
+
+/// `v` as the `f32` height the grid stores, unless that moves it by more
+/// than [`MAX_ROUNDING_M`] or overflows. NaN and infinities pass through
+/// (nodata, and [`validate`]'s refusal of infinite heights).
+#[inline]
+pub(crate) fn to_height(v: f64) -> Result<f32, Lossy> {
+    let stored = v as f32;
+    check_stored(v, stored).map(|()| stored)
+}
+
+/// Whether `stored` holds the source value `v` within [`MAX_ROUNDING_M`]
+/// (NaN and infinite `v` always pass).
+#[inline]
+pub(crate) fn check_stored(v: f64, stored: f32) -> Result<(), Lossy> {
+    // Below 2^15 in magnitude half an f32 step is under 1 mm: nothing to check.
+    if stored.abs() < 32_768.0 || !v.is_finite() {
+        return Ok(());
+    }
+    if stored.is_infinite() || (f64::from(stored) - v).abs() > MAX_ROUNDING_M {
+        return Err(Lossy { value: v, stored });
+    }
+    Ok(())
+}
+
 /// `width × height`, refused when it overflows or exceeds [`MAX_SAMPLES`].
 pub(crate) fn sample_count(path: &Path, width: usize, height: usize) -> Result<usize, DemError> {
     match width.checked_mul(height) {
@@ -259,8 +320,11 @@ fn finish(path: &Path, mut hf: Heightfield, opts: &LoadOptions) -> Result<Height
     if let Some(scale) = opts.vertical_scale
         && scale != 1.0
     {
-        for h in &mut hf.heights {
-            *h = (f64::from(*h) * scale) as f32;
+        for (k, h) in hf.heights.iter_mut().enumerate() {
+            *h = to_height(f64::from(*h) * scale).map_err(|e| {
+                let (row, col) = (k / hf.width.max(1), k % hf.width.max(1));
+                invalid(path, format!("sample (row {row}, column {col}) × vertical scale {scale}: {e}"))
+            })?;
         }
     }
     if let Some(spacing) = opts.spacing_m {

@@ -1,0 +1,42 @@
+//! What every fuzz target does: write the input where the loader reads
+//! (a file named like the format, so dispatch by magic bytes and by
+//! extension both run), load it, and check that a success keeps every
+//! promise `dem::load` makes. A panic, an abort or an allocation beyond
+//! libFuzzer's limit is a finding; an `Err` is the right answer to junk.
+
+use std::path::PathBuf;
+
+use terrachunk::dem::{LoadOptions, load};
+use terrachunk::heightfield::void_fill;
+
+/// A per-process scratch file named `name` (one directory per process, so
+/// parallel fuzzing jobs do not share it), in memory where Linux offers it:
+/// on a disk-backed /tmp the write costs 30 times the load.
+fn scratch(name: &str) -> PathBuf {
+    let shm = std::path::Path::new("/dev/shm");
+    let base = if shm.is_dir() { shm.to_path_buf() } else { std::env::temp_dir() };
+    let dir = base.join(format!("terrachunk-fuzz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir.join(name)
+}
+
+/// Loads `data` as a file called `name` and checks the result.
+pub fn load_bytes(name: &str, data: &[u8]) {
+    let path = scratch(name);
+    std::fs::write(&path, data).expect("write the input");
+    let Ok(hf) = load(std::slice::from_ref(&path), &LoadOptions::default()) else {
+        return;
+    };
+    // What `dem::load` promises every later stage.
+    assert!(hf.width >= 2 && hf.height >= 2, "{} × {} grid", hf.width, hf.height);
+    assert_eq!(hf.heights.len(), hf.width * hf.height);
+    assert!(hf.spacing_m.iter().all(|s| s.is_finite() && *s > 0.0), "spacing {:?}", hf.spacing_m);
+    assert!(hf.heights.iter().all(|h| !h.is_infinite()), "an infinite height");
+    assert!(hf.heights.iter().any(|h| !h.is_nan()), "no valid sample");
+    // The first thing the pipeline does with it.
+    if hf.heights.len() <= 1 << 20
+        && let Some(filled) = void_fill(&hf)
+    {
+        assert!(filled.iter().all(|h| h.is_finite()), "void fill left a non-finite height");
+    }
+}

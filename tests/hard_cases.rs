@@ -1,0 +1,532 @@
+//! Hard cases: inputs that break naive terrain code (issue 5, section 2).
+//!
+//! Each one either builds and then passes every independent check — `verify`
+//! (error bound per level and at the leaves, coverage, shared borders, morph
+//! targets on the parent surface), the Khronos glTF validator, and no NaN or
+//! infinity in any written number — or fails with exit code 2 and a message
+//! that names the file and the problem. Never a panic, a hang, a NaN in the
+//! output or a silently wrong tileset.
+//!
+//! | case | outcome |
+//! |---|---|
+//! | flat 0 m and 8848 m | one chunk, ≤ 8 triangles, exact |
+//! | 10 km one-sample spike (plane; chunk corner, border, grid corner) | exact at the leaf; every level keeps the peak |
+//! | 500 m / 10 km cliffs: diagonals, on a chunk border | exact alone; three levels with shared borders on hills |
+//! | ±1000 m checkerboard and white noise | exact; 257² noise takes refine levels |
+//! | 1e6 m heights with 1/16 m relief (float32) / 1 cm relief (text) | exact / refused: f32 cannot hold it |
+//! | 1 mm, 10 km and 1 mm × 10 km spacing | verifies; boxes span the grid |
+//! | 2 × 300 and 300 × 2 strips | 299 one-cell chunks, exact |
+//! | 1025², 1026², 4097 × 3 | verifies; 4 levels / 2048 top chunks |
+//! | 1009 × 997 (primes) | verifies |
+//! | nodata islands and lakes; one valid sample | verifies; chunks over nodata absent |
+//! | all nodata (.asc, GeoTIFF value and NaN, PNG alpha) | refused: "all N samples are nodata" |
+//! | ±inf; NaN in .asc not declared nodata | refused; NaN in float GeoTIFF is a hole |
+//! | int16 −32767…32767, uint16 0…65535 | exact at full density; boxes reach 65 535 m |
+//! | bathymetry to −10 994 m | verifies; boxes below −10 km |
+//! | max_error 1 mm on whole metres / above the relief | exact / one chunk |
+
+use std::path::{Path, PathBuf};
+
+use terrachunk::config::Config;
+use terrachunk::pipeline::{LevelReport, Report, build};
+use terrachunk::verify::VerifyReport;
+
+use crate::common::{
+    assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, with_config, write_asc,
+    write_asc_spaced,
+};
+
+/// What a hard case left behind, all checks passed.
+struct Built {
+    _tmp: tempfile::TempDir,
+    out: PathBuf,
+    report: Report,
+    verify: VerifyReport,
+}
+
+fn config(max_error_m: f64, leaf_cells: u32) -> Config {
+    Config { max_error_m, leaf_cells: Some(leaf_cells), ..Config::default() }
+}
+
+/// Builds `dem` and runs every check on the result.
+#[track_caller]
+fn survives(dem: &Path, cfg: Config) -> Built {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let report = build(&with_config(dem, &out, cfg)).unwrap_or_else(|e| panic!("{}: {e}", dem.display()));
+    let verify = verified(&out);
+    let glbs = assert_finite_output(&out);
+    let chunks: usize = report.levels.iter().map(|l| l.chunks).sum();
+    assert_eq!(glbs, chunks, "one .glb per chunk");
+    let v = khronos_validate(&out);
+    assert_eq!(v["files"], chunks as u64);
+    Built { _tmp: tmp, out, report, verify }
+}
+
+/// The deepest level's figures.
+fn leaf(b: &Built) -> &LevelReport {
+    b.report.levels.last().unwrap()
+}
+
+/// Smooth hills with a few hundred metres of relief.
+fn hills(i: usize, j: usize) -> f64 {
+    let (x, z) = (j as f64, i as f64);
+    300.0 + 120.0 * (x / 23.0).sin() * (z / 31.0).cos() + 40.0 * ((x + 2.0 * z) / 11.0).sin()
+}
+
+// ------------------------------------------------------------- flat ground
+
+#[test]
+fn flat_ground_ends_shallow() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, h) in [("zero.asc", 0.0), ("everest.asc", 8848.0)] {
+        let dem = write_asc(tmp.path(), name, 257, 257, |_, _| h);
+        // Small leaves and a tiny error: a flat grid still needs no child.
+        let b = survives(&dem, config(0.001, 16));
+        assert_eq!(b.report.levels.len(), 1, "{name}: a flat grid is one leaf chunk");
+        assert!(b.report.levels[0].triangles <= 8, "{name}: {} triangles", b.report.levels[0].triangles);
+        assert_eq!(b.report.levels[0].max_error_m, 0.0, "{name}");
+    }
+}
+
+// --------------------------------------------------------- spikes and cliffs
+
+#[test]
+fn single_spike_is_kept_exactly_and_skirts_reach_below_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "spike.asc", 101, 101, |i, j| if (i, j) == (37, 61) { 10_000.0 } else { 100.0 });
+    let b = survives(&dem, config(1.0, 200));
+    assert!(b.verify.levels.values().all(|l| l.max_error_m <= l.delta_m));
+    assert_eq!(leaf(&b).max_error_m, 0.0, "the spike and the plane are exact at the leaf");
+}
+
+#[test]
+fn ten_km_spike_on_a_chunk_corner_a_border_and_the_grid_corner() {
+    // 257 × 257 with 32-cell leaves on gently rolling ground: four levels.
+    // (128, 128) is the corner of the four level-1 chunks, (0, 77) lies on
+    // the grid's north border and (256, 256) is its south-east corner.
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, at) in [("corner.asc", (128, 128)), ("border.asc", (0, 77)), ("grid_corner.asc", (256, 256))] {
+        let dem =
+            write_asc(tmp.path(), name, 257, 257, |i, j| if (i, j) == at { 10_000.0 } else { hills(i, j) / 20.0 });
+        let b = survives(&dem, config(0.5, 32));
+        assert!(b.report.levels.len() >= 3, "{name}: {} levels", b.report.levels.len());
+        // Every level keeps the 10 km peak: leaving it out is a 10 km error
+        // that verify would have reported; the root box reaches it.
+        let ts = tileset(&b.out);
+        let top = ts["root"]["boundingVolume"]["box"].as_array().unwrap();
+        let (cz, hz) = (top[2].as_f64().unwrap(), top[11].as_f64().unwrap());
+        assert!(cz + hz >= 10_000.0, "{name}: the root box tops out at {} m", cz + hz);
+        assert!(b.verify.levels[&0].max_error_m <= b.verify.levels[&0].delta_m);
+    }
+}
+
+#[test]
+fn cliff_along_a_diagonal_and_a_chunk_border() {
+    // 300 cells, 100-cell leaves: levels are cut at column 150, then 75 and 225.
+    let tmp = tempfile::tempdir().unwrap();
+    type Height = fn(usize, usize) -> f64;
+    let cases: [(&str, Height); 4] = [
+        ("diag", |i, j| if i + j > 300 { 500.0 } else { 0.0 }),
+        ("antidiag", |i, j| if i > j { 500.0 } else { 0.0 }),
+        ("border", |_, j| if j >= 150 { 500.0 } else { 0.0 }),
+        // The dividing column itself halfway up a 10 km wall.
+        ("wall", |_, j| match j {
+            0..150 => 0.0,
+            150 => 5_000.0,
+            _ => 10_000.0,
+        }),
+    ];
+    for (name, f) in cases {
+        // Alone, planes and a step are meshed exactly.
+        let dem = write_asc(tmp.path(), &format!("{name}.asc"), 301, 301, f);
+        let b = survives(&dem, config(0.5, 100));
+        assert_eq!(leaf(&b).max_error_m, 0.0, "{name}: planes and a step are exact");
+        // On rolling ground the tree goes deep and the cliff crosses borders.
+        let dem = write_asc(tmp.path(), &format!("{name}_hills.asc"), 301, 301, |i, j| f(i, j) + hills(i, j) / 10.0);
+        let b = survives(&dem, config(0.5, 100));
+        assert_eq!(b.report.levels.len(), 3, "{name}");
+        assert!(b.verify.borders_checked >= 12, "{name}: {} borders compared", b.verify.borders_checked);
+    }
+}
+
+// ------------------------------------------------------------------- noise
+
+#[test]
+fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A checkerboard is exact with few vertices (every sample lies on a plane
+    // through lattice neighbours of the same colour): verify confirms it.
+    let board = |i: usize, j: usize| if (i + j).is_multiple_of(2) { 1000.0 } else { -1000.0 };
+    let dem = write_asc(tmp.path(), "board.asc", 129, 129, board);
+    let b = survives(&dem, config(1.0, 32));
+    assert_eq!(leaf(&b).max_error_m, 0.0);
+    // White noise (uniform in ±1000 m) needs (almost) every sample. Small:
+    // one chunk at full density.
+    let noise = |i: usize, j: usize| {
+        let mut x = (i as u64) << 32 | j as u64;
+        x = (x ^ (x >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        x = (x ^ (x >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        x ^= x >> 32;
+        (x >> 11) as f64 / (1u64 << 53) as f64 * 2000.0 - 1000.0
+    };
+    let dem = write_asc(tmp.path(), "small.asc", 129, 129, noise);
+    let b = survives(&dem, config(0.01, 32));
+    assert_eq!(b.report.levels.len(), 1);
+    assert!(leaf(&b).max_error_m <= 0.01);
+    assert!(leaf(&b).vertices * 100 >= 99 * 129 * 129, "noise keeps its samples: {}", leaf(&b).vertices);
+    // 257² samples are too many for one u16-indexed chunk at full density:
+    // the planner adds refine levels (same footprints, δ doubling upwards)
+    // until the top chunk fits, and the leaves (129² samples) keep them all.
+    let dem = write_asc(tmp.path(), "big.asc", 257, 257, noise);
+    let b = survives(&dem, config(0.5, 128));
+    assert!(b.report.refine_levels > 0, "the top chunk cannot hold 257² vertices");
+    let deepest = leaf(&b);
+    assert!(deepest.max_error_m <= 0.5);
+    assert!(deepest.vertices * 100 >= 99 * deepest.chunks * 129 * 129, "{:#?}", b.report.levels);
+}
+
+// ----------------------------------------------------------- huge offsets
+
+#[test]
+fn heights_near_a_million_metres_with_centimetre_relief() {
+    let tmp = tempfile::tempdir().unwrap();
+    // f32 holds heights near 1e6 m in 1/16 m steps: a float32 GeoTIFF with
+    // that relief keeps it exactly, and chunk-local f32 positions (the f64
+    // offset in the node translation) keep it in the output.
+    let relief = |i: usize, j: usize| ((i * 7 + j * 3) % 5) as f32 * 0.0625;
+    let p = tmp.path().join("offset.tif");
+    let data: Vec<f32> = (0..64 * 48).map(|k| 1.0e6 + relief(k / 64, k % 64)).collect();
+    write_tiff_f32(&p, 64, 48, &data, None);
+    let b = survives(&p, config(0.01, 200));
+    assert_eq!(leaf(&b).max_error_m, 0.0, "every 1/16 m step kept");
+    assert!(leaf(&b).vertices > 1000, "the relief is meshed, not flattened");
+    // Centimetre relief on top of 1e6 m cannot be held in f32 at all: the
+    // load refuses it rather than flatten it silently.
+    let asc = write_asc(tmp.path(), "cm.asc", 20, 20, |i, j| 1.0e6 + 0.01 * ((i + j) % 2) as f64);
+    let out = tmp.path().join("cm.out");
+    assert_bad_input(
+        &["build", asc.to_str().unwrap(), "-o", out.to_str().unwrap()],
+        &out,
+        "cm.asc: line 7: 1000000.01 would be stored as 1000000",
+    );
+}
+
+// ------------------------------------------------------------------ spacing
+
+#[test]
+fn millimetre_and_ten_kilometre_spacing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "hills.asc", 121, 97, |i, j| hills(i, j) + if j > 60 { 50.0 } else { 0.0 });
+    for spacing in [[0.001, 0.001], [10_000.0, 10_000.0], [0.001, 10_000.0]] {
+        let cfg = Config { spacing_m: Some(spacing), ..config(0.5, 32) };
+        let b = survives(&dem, cfg);
+        assert_eq!(b.report.spacing_m, spacing);
+        let ts = tileset(&b.out);
+        assert_eq!(ts["extras"]["terrachunk"]["spacing_m"], serde_json::json!(spacing));
+        // The root box spans the grid: 120 × 96 cells (x east, y north).
+        let bx = ts["root"]["boundingVolume"]["box"].as_array().unwrap();
+        let half = |k: usize| bx[k].as_f64().unwrap().abs();
+        assert!((2.0 * half(3) - 120.0 * spacing[0]).abs() <= 1e-9 * 120.0 * spacing[0], "{spacing:?}: {bx:?}");
+        assert!((2.0 * half(7) - 96.0 * spacing[1]).abs() <= 1e-9 * 96.0 * spacing[1], "{spacing:?}: {bx:?}");
+        assert!(b.report.levels.len() >= 3, "{spacing:?}");
+    }
+    // The same through the file: a 1 mm cell size.
+    let mm = write_asc_spaced(tmp.path(), "mm.asc", 65, 65, 0.001, hills);
+    let b = survives(&mm, config(0.5, 32));
+    assert_eq!(b.report.spacing_m, [0.001, 0.001]);
+}
+
+// ------------------------------------------------------------ grid shapes
+
+#[test]
+fn strips_two_samples_wide_or_tall() {
+    let tmp = tempfile::tempdir().unwrap();
+    let wide = write_asc(tmp.path(), "wide.asc", 300, 2, |i, j| hills(i, j) + if j % 50 == 0 { 80.0 } else { 0.0 });
+    let tall = write_asc(tmp.path(), "tall.asc", 2, 300, |i, j| hills(j, i) + if i % 50 == 0 { 80.0 } else { 0.0 });
+    for dem in [wide, tall] {
+        let b = survives(&dem, config(0.5, 200));
+        assert_eq!(b.report.valid_samples, 600);
+        // 299 one-cell-wide top chunks; each is its own leaf.
+        assert_eq!(b.report.levels[0].chunks, 299, "{}", dem.display());
+        assert_eq!(b.verify.borders_checked, 298);
+        assert_eq!(leaf(&b).max_error_m, 0.0);
+    }
+}
+
+#[test]
+fn grids_just_over_a_power_of_two() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 2^10 + 1 and 2^10 + 2 samples: even and uneven midpoint cuts.
+    for n in [1025, 1026] {
+        let dem = write_asc(tmp.path(), &format!("g{n}.asc"), n, n, hills);
+        let b = survives(&dem, config(2.0, 200));
+        assert_eq!(b.report.samples, n * n);
+        assert_eq!(b.report.levels.len(), 4, "{n}: 1024 cells → 512 → 256 → 128");
+    }
+    // 2^12 + 1 as a 4097 × 3 strip: 2048 top chunks of 2 × 2 cells.
+    let strip = write_asc(tmp.path(), "s4097.asc", 4097, 3, |i, j| hills(i, j) * (1.0 + (j % 7) as f64));
+    let b = survives(&strip, config(1.0, 200));
+    assert_eq!(b.report.levels[0].chunks, 2048);
+}
+
+#[test]
+fn prime_sized_grid() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "p.asc", 1009, 997, hills);
+    let b = survives(&dem, config(4.0, 200));
+    assert_eq!(b.report.grid, [1009, 997]);
+    // 1008 × 996 cells: every leaf within max_error, no sample left out.
+    assert!(leaf(&b).max_error_m <= 4.0);
+}
+
+// ------------------------------------------------------------------ nodata
+
+#[test]
+fn nodata_islands_and_lakes() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Islands of data in a nodata sea (one a single sample, one straddling
+    // the level-1 cut at 100), and nodata lakes inside the largest island.
+    let dem = write_asc(tmp.path(), "islands.asc", 201, 201, |i, j| {
+        let island = |ci: f64, cj: f64, r: f64| ((i as f64 - ci).powi(2) + (j as f64 - cj).powi(2)).sqrt() <= r;
+        let lake = island(60.0, 60.0, 6.0) || (i, j) == (40, 80) || (i % 17 == 3 && j % 13 == 5);
+        let land = island(60.0, 60.0, 45.0) || island(100.0, 150.0, 12.0) || (i, j) == (170, 30);
+        if land && !lake { hills(i, j) } else { -9999.0 }
+    });
+    let b = survives(&dem, config(0.5, 50));
+    assert!(b.report.valid_samples < 201 * 201 / 2);
+    assert!(b.report.levels.len() >= 3);
+    // Chunks over open sea are not written.
+    let deepest = leaf(&b);
+    assert!(deepest.chunks < 16, "{} of 16 leaves written", deepest.chunks);
+}
+
+#[test]
+fn one_valid_sample() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, at) in [("middle.asc", (37, 91)), ("corner.asc", (0, 0)), ("edge.asc", (150, 0))] {
+        let dem = write_asc(tmp.path(), name, 151, 151, |i, j| if (i, j) == at { 1234.5 } else { -9999.0 });
+        let b = survives(&dem, config(0.25, 50));
+        assert_eq!(b.report.valid_samples, 1, "{name}");
+        assert_eq!(b.verify.levels.values().map(|l| l.max_error_m).fold(0.0, f64::max), 0.0, "{name}");
+        // Only the chunks whose footprint holds the sample exist.
+        for l in &b.report.levels {
+            assert!(l.chunks <= 4, "{name}: level {} has {} chunks", l.level, l.chunks);
+        }
+    }
+}
+
+#[test]
+fn all_nodata_in_every_format_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let out = d.join("out");
+    let asc = write_asc(d, "void.asc", 30, 20, |_, _| -9999.0);
+    let tif = d.join("void.tif");
+    write_tiff_f32(&tif, 30, 20, &[-32767.0; 600], Some("-32767"));
+    let nan_tif = d.join("nan.tif");
+    write_tiff_f32(&nan_tif, 30, 20, &[f32::NAN; 600], None);
+    let png = d.join("void.png");
+    image::ImageBuffer::<image::LumaA<u16>, Vec<u16>>::from_raw(30, 20, vec![0; 1200]).unwrap().save(&png).unwrap();
+    for dem in [asc, tif, nan_tif, png] {
+        let name = dem.file_name().unwrap().to_str().unwrap().to_string();
+        assert_bad_input(
+            &["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap()],
+            &out,
+            &format!("{name}: all 600 samples are nodata"),
+        );
+    }
+}
+
+// ------------------------------------------------- values that are not heights
+
+#[test]
+fn nan_and_infinity_in_the_data() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let out = d.join("out");
+    let o = out.to_str().unwrap();
+    // ±inf is never a height, in text or binary.
+    for (name, bad) in [("inf.asc", f64::INFINITY), ("neginf.asc", f64::NEG_INFINITY)] {
+        let dem = write_asc(d, name, 10, 10, |i, j| if (i, j) == (4, 4) { bad } else { 1.0 });
+        assert_bad_input(&["build", dem.to_str().unwrap(), "-o", o], &out, &format!("{name}: 1 samples are infinite"));
+    }
+    let tif = d.join("inf.tif");
+    let mut data = vec![5.0f32; 100];
+    data[17] = f32::INFINITY;
+    data[42] = f32::NEG_INFINITY;
+    write_tiff_f32(&tif, 10, 10, &data, Some("-9999"));
+    assert_bad_input(&["build", tif.to_str().unwrap(), "-o", o], &out, "inf.tif: 2 samples are infinite");
+    // A NaN in a text grid whose header declares another nodata value is a
+    // broken export, not a hole.
+    let dem = write_asc(d, "nan.asc", 10, 10, |i, j| if (i, j) == (2, 3) { f64::NAN } else { 1.0 });
+    assert_bad_input(
+        &["build", dem.to_str().unwrap(), "-o", o],
+        &out,
+        "nan.asc: line 9: \"NaN\" is not a height (NODATA_value is -9999)",
+    );
+    // In a float GeoTIFF NaN is nodata (GDAL's convention): a hole.
+    let mut data: Vec<f32> = (0..40 * 30).map(|k| hills(k / 40, k % 40) as f32).collect();
+    data[0] = f32::NAN;
+    data[300..320].fill(f32::NAN);
+    let tif = d.join("holes.tif");
+    write_tiff_f32(&tif, 40, 30, &data, None);
+    let b = survives(&tif, config(0.5, 200));
+    assert_eq!(b.report.valid_samples, 40 * 30 - 21);
+}
+
+// ------------------------------------------------------ integer extremes
+
+#[test]
+fn int16_and_uint16_extremes() {
+    use tiff::encoder::{TiffEncoder, colortype};
+    let tmp = tempfile::tempdir().unwrap();
+    // −32767 next to 32767 (−32768 is the usual nodata, declared here).
+    let i16s: Vec<i16> = (0..64 * 64)
+        .map(|k| match (k / 64, k % 64) {
+            (i, _) if i < 20 => -32767,
+            (i, j) if i < 40 => {
+                if (i + j) % 2 == 0 {
+                    32767
+                } else {
+                    -32767
+                }
+            }
+            (_, 5) => -32768,
+            (i, j) => (i * 500 + j * 7) as i16,
+        })
+        .collect();
+    let p = tmp.path().join("i16.tif");
+    let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::GrayI16>(64, 64).unwrap();
+    img.encoder().write_tag(tiff::tags::Tag::GdalNodata, "-32768").unwrap();
+    img.write_data(&i16s).unwrap();
+    let b = survives(&p, config(0.5, 16));
+    assert_eq!(b.report.valid_samples, 64 * 64 - 24);
+    assert_eq!(leaf(&b).max_error_m, 0.0, "integer noise at full density is exact");
+    // 0 next to 65535 in a 16-bit PNG (and a GeoTIFF of the same).
+    let u16s: Vec<u16> =
+        (0..48 * 40).map(|k| if (k / 48 + k % 48) % 3 == 0 { 65535 } else { (k % 48) as u16 }).collect();
+    let png = tmp.path().join("u16.png");
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(48, 40, u16s.clone()).unwrap().save(&png).unwrap();
+    let tif = tmp.path().join("u16.tif");
+    TiffEncoder::new(std::fs::File::create(&tif).unwrap())
+        .unwrap()
+        .write_image::<colortype::Gray16>(48, 40, &u16s)
+        .unwrap();
+    for dem in [png, tif] {
+        let b = survives(&dem, config(0.05, 16));
+        assert_eq!(b.report.valid_samples, 48 * 40);
+        let ts = tileset(&b.out);
+        let bx = ts["root"]["boundingVolume"]["box"].as_array().unwrap();
+        let top = bx[2].as_f64().unwrap() + bx[11].as_f64().unwrap();
+        assert!(top >= 65535.0, "{}: the root box reaches {top} m", dem.display());
+    }
+}
+
+// -------------------------------------------------------------- bathymetry
+
+#[test]
+fn bathymetry_below_minus_ten_km() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A trench floor at −10 994 m (Challenger Deep) under a −10 km plain.
+    let dem = write_asc(tmp.path(), "trench.asc", 161, 161, |i, j| {
+        let d = (i as f64 - 80.0).abs() + (j as f64 - 80.0).abs() / 4.0;
+        -10_000.0 - (994.0 - 20.0 * d).max(0.0) - hills(i, j) / 100.0
+    });
+    let b = survives(&dem, config(0.5, 40));
+    assert!(b.report.levels.len() >= 2);
+    let ts = tileset(&b.out);
+    let bx = ts["root"]["boundingVolume"]["box"].as_array().unwrap();
+    let (bottom, top) =
+        (bx[2].as_f64().unwrap() - bx[11].as_f64().unwrap(), bx[2].as_f64().unwrap() + bx[11].as_f64().unwrap());
+    assert!(bottom <= -10_994.0 && top < -10_000.0, "root box {bottom}..{top} m");
+}
+
+// ------------------------------------------- max_error against the data
+
+#[test]
+fn max_error_below_the_quantisation_step_and_above_the_relief() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Whole metres: 1 mm asks for every integer step to be exact.
+    let dem = write_asc(tmp.path(), "int.asc", 97, 97, |i, j| hills(i, j).round());
+    let fine = survives(&dem, config(0.001, 32));
+    assert!(leaf(&fine).max_error_m <= 0.001);
+    assert_eq!(leaf(&fine).max_error_m, 0.0, "integer data within 1 mm is exact");
+    // One metre more than the whole relief: the four corners do.
+    let (lo, hi) = (0..97 * 97)
+        .map(|k| hills(k / 97, k % 97).round())
+        .fold((f64::MAX, f64::MIN), |(a, b), h| (a.min(h), b.max(h)));
+    let coarse = survives(&dem, config(hi - lo + 1.0, 32));
+    assert_eq!(coarse.report.levels.len(), 1, "one chunk");
+    assert_eq!(coarse.report.levels[0].chunks, 1);
+    // Corners and the midpoints the (unneeded) children would share.
+    assert!(coarse.report.levels[0].triangles <= 8, "{}", coarse.report.levels[0].triangles);
+    assert!(coarse.report.levels[0].max_error_m <= hi - lo + 1.0);
+}
+
+// ------------------------------------------------- mesher bugs, now pinned
+
+/// Found with the spade-based mesher: a sample on a constraint edge with an
+/// inexact (split-point) end was inserted by removing and re-adding the
+/// constraint, which re-triangulated faces that were never rescanned, and
+/// `srtm3_sierra_3x3` at 5 m left a sample 7.67 m off in chunk 6/14/7 against
+/// δ 5 m. The half-edge TIN splits such an edge in place (every rewritten
+/// triangle is rescanned), and the pipeline refuses any chunk beyond its δ
+/// (`BuildError::MissedDelta`). Needs `../shared/dem`; minutes in a dev
+/// build, so run with `--release -- --ignored`.
+#[test]
+#[ignore = "needs ../shared/dem; run in release"]
+fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
+    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/dem/srtm3_sierra_3x3");
+    assert!(dem.is_dir(), "needs {}", dem.display());
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let report = build(&with_config(&dem, &out, Config { max_error_m: 5.0, ..Config::default() }))
+        .unwrap_or_else(|e| panic!("{e}"));
+    for l in &report.levels {
+        assert!(l.max_error_m <= l.delta_m, "level {}: {} m > δ {} m", l.level, l.max_error_m, l.delta_m);
+    }
+}
+
+/// Was a bug in the mesher (`mesh/decimate.rs`, `build_target` as used by
+/// `refine_line`): borders are meant to be decided from the line's own
+/// samples so that neighbours agree, but the 1-D refinement compares each
+/// sample against `0.98·δ − 4ε·relief`, and the relief is the chunk's own.
+/// Two neighbours of different relief therefore split a shared border
+/// differently whenever a border sample's error lies between their targets:
+/// a T-junction (found by `properties`; see
+/// `tests/properties.proptest-regressions`). 3 × 5 samples make two top
+/// chunks sharing row 2; a −5000 m corner in the north chunk lowers its
+/// target by 2.4 mm.
+#[test]
+fn neighbours_of_different_relief_split_their_shared_border_alike() {
+    let tmp = tempfile::tempdir().unwrap();
+    // max_error 3 mm: targets 0.56 mm (north, relief 5000 m) and 2.94 mm
+    // (south, flat); the 1 mm border sample is inserted by the north chunk
+    // only: a 1 mm crack. At 1 mm the north target is negative and it keeps
+    // every border sample.
+    for (max_error_m, mid) in [(0.003, 0.001), (0.001, 0.0)] {
+        let dem = write_asc(tmp.path(), &format!("two_{max_error_m}.asc"), 3, 5, |i, j| match (i, j) {
+            (0, 2) => -5000.0,
+            (2, 1) => mid,
+            _ => 0.0,
+        });
+        let b = survives(&dem, config(max_error_m, 200));
+        assert_eq!(b.report.levels[0].chunks, 2);
+    }
+}
+
+// ----------------------------------------------------------------- writers
+
+/// A one-band float32 GeoTIFF (no GeoKeys: 1 m spacing), with GDAL_NODATA
+/// when given.
+fn write_tiff_f32(path: &Path, w: u32, h: u32, data: &[f32], nodata: Option<&str>) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(w, h).unwrap();
+    if let Some(nd) = nodata {
+        img.encoder().write_tag(tiff::tags::Tag::GdalNodata, nd).unwrap();
+    }
+    img.write_data(data).unwrap();
+}
