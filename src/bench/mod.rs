@@ -165,7 +165,7 @@ pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<
             let how = |d: i64, what: &str| match d {
                 0 => String::new(),
                 d if d > 0 => format!(", {d} {what} cropped"),
-                d => format!(", last {what} repeated {} times", -d),
+                d => format!(", {} {what} added by repeating the last", -d),
             };
             eprintln!(
                 "{name}: top-left {n}×{n} of {}×{}{}{}",

@@ -30,7 +30,7 @@ const COLOURS: [RGBColor; 8] = [
 fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        // The font is compiled in and known to parse; a failure shows as a
+        // The font is compiled in and known to parse; a failure would show as a
         // "font unavailable" drawing error below.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     });
@@ -119,6 +119,10 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, series: &[Series]) ->
     let root = root.titled("terrachunk bench: speed against error", ("sans-serif", 26)).map_err(|e| e.to_string())?;
     let panels = root.split_evenly((1, 2));
     let x = log_range(series.iter().flat_map(|s| s.1.iter().map(|p| p.0)));
+    // Tick the errors that were run (a log axis alone only ticks powers of ten).
+    let mut x_ticks: Vec<f64> = series.iter().flat_map(|s| s.1.iter().map(|p| p.0)).collect();
+    x_ticks.sort_by(f64::total_cmp);
+    x_ticks.dedup();
     let panel = |area: &DrawingArea<DB, Shift>,
                  caption: &str,
                  y_desc: &str,
@@ -131,16 +135,17 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, series: &[Series]) ->
             .margin(14)
             .x_label_area_size(48)
             .y_label_area_size(78)
-            .build_cartesian_2d(x.clone().log_scale(), y.log_scale())
+            .build_cartesian_2d(x.clone().log_scale().with_key_points(x_ticks.clone()), y.log_scale())
             .map_err(|e| e.to_string())?;
         chart
             .configure_mesh()
+            .y_labels(12)
             .x_desc("max_error_m (m)")
             .y_desc(y_desc)
             .x_label_formatter(&|v| tick(*v))
             .y_label_formatter(&|v| tick(*v))
             .bold_line_style(RGBColor(200, 200, 200))
-            .light_line_style(RGBColor(242, 242, 242))
+            .light_line_style(TRANSPARENT)
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()
@@ -165,7 +170,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, series: &[Series]) ->
         if legend {
             chart
                 .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
+                .position(SeriesLabelPosition::LowerLeft)
                 .label_font(("sans-serif", 14))
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
