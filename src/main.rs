@@ -280,22 +280,12 @@ fn run_bench(a: BenchArgs) -> Result<(), bench::BenchError> {
         bench::replot(&a.out)?;
         println!("{}", a.out.join("bench.png").display());
     } else if let Some(npy) = &a.export_grid {
-        let p = bench::export_grid(one_dem()?, cut, config, npy)?;
-        let nodata = p.hf.heights.len() - p.hf.valid_count();
-        println!(
-            "{}: {} × {} float32 ({} nodata as NaN) from {}",
-            npy.display(),
-            p.hf.width,
-            p.hf.height,
-            nodata,
-            p.label
-        );
+        let (label, hf) = bench::export_grid(one_dem()?, cut, config, npy)?;
+        let nodata = hf.heights.len() - hf.valid_count();
+        println!("{}: {} × {} float32 ({nodata} nodata as NaN) from {label}", npy.display(), hf.width, hf.height);
     } else if let Some(obj) = &a.measure_mesh {
-        let p = bench::prepare(one_dem()?, cut, &bench::load_options(config)?, &std::env::temp_dir())?;
-        if p.build_input != one_dem()? {
-            let _ = std::fs::remove_file(&p.build_input);
-        }
-        let m = bench::measure_mesh(&p.hf, obj)?;
+        let (_, hf) = bench::cut_grid(one_dem()?, cut, &bench::load_options(config)?)?;
+        let m = bench::measure_mesh(&hf, obj)?;
         println!("{}", serde_json::to_string_pretty(&m).expect("plain values"));
     } else if let Some(manifest) = &a.peers {
         let rows = bench::import_peers(one_dem()?, cut, config, manifest, &a.out)?;

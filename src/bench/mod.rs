@@ -147,16 +147,13 @@ pub fn load_options(config: Option<&Path>) -> Result<LoadOptions, BenchError> {
     Ok(LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })
 }
 
-/// Loads `dem`, cuts it and, for a cut, writes the cut as a float32 TIFF
-/// under `work` (built with the original spacing and a vertical scale of 1,
-/// since the heights written are already scaled).
-pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<Prepared, BenchError> {
+/// Loads `dem` and cuts it; returns its label (file name, plus the cut) and
+/// the heights every tool of the benchmark sees.
+pub fn cut_grid(dem: &Path, cut: Cut, load: &LoadOptions) -> Result<(String, Heightfield), BenchError> {
     let full = dem::load(&[dem.to_path_buf()], load)?;
     let name = dem.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| dem.display().to_string());
-    let (hf, label) = match cut {
-        Cut::Whole => {
-            return Ok(Prepared { label: table::clean(&name), hf: full, build_input: dem.into(), build_args: vec![] });
-        }
+    let (label, hf) = match cut {
+        Cut::Whole => (name, full),
         Cut::Square(n) => {
             if n < 2 {
                 return Err(BenchError::Usage(format!("--square {n}: needs at least 2 samples a side")));
@@ -174,17 +171,26 @@ pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<
                 how(change.columns, "columns"),
                 how(change.rows, "rows")
             );
-            (hf, format!("{name} {n}x{n}"))
+            (format!("{name} {n}x{n}"), hf)
         }
         Cut::Window(f) => {
             let hf = grid::centred_window(&full, f);
-            let label = format!("{name} 1/{f} {}x{}", hf.width, hf.height);
-            (hf, label)
+            (format!("{name} 1/{f} {}x{}", hf.width, hf.height), hf)
         }
     };
+    Ok((table::clean(&label), hf))
+}
+
+/// [`cut_grid`], and for a cut a float32 TIFF of it under `work` that
+/// `build` reads with the original spacing and a vertical scale of 1 (the
+/// heights written are already scaled).
+pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<Prepared, BenchError> {
+    let (label, hf) = cut_grid(dem, cut, load)?;
+    if cut == Cut::Whole {
+        return Ok(Prepared { label, hf, build_input: dem.into(), build_args: vec![] });
+    }
     std::fs::create_dir_all(work).map_err(|source| BenchError::Io { path: work.into(), source })?;
-    let stem = label.replace([' ', '/'], "_");
-    let path = work.join(format!("{stem}.tif"));
+    let path = work.join(format!("{}.tif", label.replace([' ', '/'], "_")));
     grid::write_f32_tiff(&hf, &path)?;
     let args = vec![
         "--spacing".into(),
@@ -192,7 +198,7 @@ pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<
         "--vertical-scale".into(),
         "1".into(),
     ];
-    Ok(Prepared { label: table::clean(&label), hf, build_input: path, build_args: args })
+    Ok(Prepared { label, hf, build_input: path, build_args: args })
 }
 
 /// The parts of `build --report` JSON the bench reads.
@@ -539,14 +545,16 @@ pub fn replot(dir: &Path) -> Result<(), BenchError> {
 }
 
 /// Writes the grid a benchmark of `dem` with `cut` runs on as `.npy`
-/// ([`grid::write_npy`]), for the Python peers. Returns it.
-pub fn export_grid(dem: &Path, cut: Cut, config: Option<&Path>, npy: &Path) -> Result<Prepared, BenchError> {
-    let tmp = npy.with_extension("work");
-    let p = prepare(dem, cut, &load_options(config)?, &tmp);
-    let _ = std::fs::remove_dir_all(&tmp);
-    let p = p?;
-    grid::write_npy(&p.hf, npy)?;
-    Ok(p)
+/// ([`grid::write_npy`]), for the Python peers. Returns its label and heights.
+pub fn export_grid(
+    dem: &Path,
+    cut: Cut,
+    config: Option<&Path>,
+    npy: &Path,
+) -> Result<(String, Heightfield), BenchError> {
+    let (label, hf) = cut_grid(dem, cut, &load_options(config)?)?;
+    grid::write_npy(&hf, npy)?;
+    Ok((label, hf))
 }
 
 /// A mesh measured against a grid.
@@ -582,11 +590,7 @@ pub fn import_peers(
     out: &Path,
 ) -> Result<Vec<Row>, BenchError> {
     let text = std::fs::read_to_string(manifest).map_err(|source| BenchError::Io { path: manifest.into(), source })?;
-    let work = {
-        std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
-        scratch(out)?
-    };
-    let p = prepare(dem, cut, &load_options(config)?, &work.0)?;
+    let (label, hf) = cut_grid(dem, cut, &load_options(config)?)?;
     let bad =
         |n: usize, what: &str| BenchError::Input { path: manifest.into(), what: format!("line {}: {what}", n + 1) };
     let mut lines = text.lines().enumerate();
@@ -603,20 +607,20 @@ pub fn import_peers(
         let max_error_m: f64 = f[1].parse().map_err(|_| bad(n, "bad max_error_m"))?;
         let seconds: f64 = f[2].parse().map_err(|_| bad(n, "bad seconds"))?;
         let runs: usize = f[3].parse().map_err(|_| bad(n, "bad runs"))?;
-        let m = measure_mesh(&p.hf, &dir.join(f[4]))?;
+        let m = measure_mesh(&hf, &dir.join(f[4]))?;
         eprintln!(
             "{} {} at {max_error_m} m: {} triangles, measured max error {:.4} m (RMS {:.4}), median {seconds:.3} s",
-            f[0], p.label, m.triangles, m.errors.max_error_m, m.errors.rms_error_m
+            f[0], label, m.triangles, m.errors.max_error_m, m.errors.rms_error_m
         );
         let mut secs = [None; 7];
         secs[2] = Some(seconds);
         secs[6] = Some(seconds);
         rows.push(Row {
             tool: table::clean(f[0]),
-            dem: p.label.clone(),
-            width: p.hf.width,
-            height: p.hf.height,
-            samples: p.hf.width * p.hf.height,
+            dem: label.clone(),
+            width: hf.width,
+            height: hf.height,
+            samples: hf.width * hf.height,
             max_error_m,
             levels: Some(1),
             chunks: Some(1),
@@ -632,6 +636,7 @@ pub fn import_peers(
             ..Row::default()
         });
     }
+    std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
     table::write(&out.join("bench.csv"), &rows, true)?;
     replot(out)?;
     Ok(rows)
