@@ -3,10 +3,12 @@
 //! The stages, in the order [`pipeline::build`] calls them: [`dem`] (load) →
 //! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] →
 //! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`verify`]
-//! re-checks a written tileset from its files alone.
+//! re-checks a written tileset from its files alone; [`bench`] measures speed
+//! against error, beside other tools.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod bench;
 pub mod chunk;
 pub mod config;
 pub mod dem;

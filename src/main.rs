@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
+use terrachunk::bench;
 use terrachunk::config::{Config, TextureFormat};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
@@ -83,6 +84,63 @@ enum Command {
         /// A chunk file, e.g. out/tiles/0/0/0.glb.
         glb: PathBuf,
     },
+    /// Speed against error: time builds over a ladder of max errors and
+    /// measure each result's true error (OUT/bench.csv, bench.png, bench.svg).
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+#[command(group = clap::ArgGroup::new("mode").multiple(false))]
+struct BenchArgs {
+    /// DEM file(s), each benchmarked on its own.
+    #[arg(required_unless_present = "replot")]
+    dem: Vec<PathBuf>,
+    /// max_error_m values, metres [default: 0.25,0.5,1,2,5,10,20; with --scale: 1].
+    #[arg(long, value_delimiter = ',')]
+    errors: Option<Vec<f64>>,
+    /// Timed runs per configuration; the CSV holds their medians.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Untimed runs before the timed ones.
+    #[arg(long, default_value_t = 1)]
+    warmup: usize,
+    /// Thread counts (0 = one per core) [default: 0; with --scale: 1,2].
+    #[arg(long, value_delimiter = ',')]
+    threads: Option<Vec<usize>>,
+    /// Output folder.
+    #[arg(short, long, default_value = "bench-out")]
+    out: PathBuf,
+    /// Settings file for every build (see pipeline.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Use the top-left N × N samples, repeating the last row or column where
+    /// the grid is smaller (pymartini needs N = 2^k + 1).
+    #[arg(long, value_name = "N")]
+    square: Option<usize>,
+    /// Also time one unconstrained greedy TIN over the grid (terrachunk-single-tin).
+    #[arg(long)]
+    single_tin: bool,
+    /// Add rows to OUT/bench.csv instead of starting it anew.
+    #[arg(long)]
+    append: bool,
+    /// Scaling: centred windows with 1/F of the samples each, e.g. 16,4,1
+    /// (OUT/scaling.csv).
+    #[arg(long, value_delimiter = ',', value_name = "F,...", group = "mode", conflicts_with_all = ["square", "single_tin"])]
+    scale: Option<Vec<u32>>,
+    /// Write the grid (after --square) as a float32 .npy file and stop.
+    #[arg(long, value_name = "FILE", group = "mode")]
+    export_grid: Option<PathBuf>,
+    /// Measure an OBJ mesh (column, height, row in grid units) against the
+    /// grid and print its errors as JSON.
+    #[arg(long, value_name = "FILE", group = "mode")]
+    measure_mesh: Option<PathBuf>,
+    /// Add other tools' meshes, listed in a CSV (tool,max_error_m,seconds,runs,mesh),
+    /// measured against the grid, to OUT/bench.csv.
+    #[arg(long, value_name = "MANIFEST", group = "mode")]
+    peers: Option<PathBuf>,
+    /// Redraw OUT/bench.png and OUT/bench.svg from OUT/bench.csv.
+    #[arg(long, group = "mode")]
+    replot: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -286,6 +344,90 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Bench(args) => match run_bench(args) {
+            Ok(()) => Ok(ExitCode::SUCCESS),
+            Err(e) => {
+                eprintln!("error: {e}");
+                Ok(ExitCode::from(e.exit_code() as u8))
+            }
+        },
+    }
+}
+
+fn run_bench(a: BenchArgs) -> Result<(), bench::BenchError> {
+    let cut = a.square.map_or(bench::Cut::Whole, bench::Cut::Square);
+    let config = a.config.as_deref();
+    let one_dem = || match a.dem.as_slice() {
+        [d] => Ok(d.as_path()),
+        _ => Err(bench::BenchError::Usage("give exactly one DEM with --export-grid, --measure-mesh or --peers".into())),
+    };
+    let exe = || std::env::current_exe().map_err(|source| bench::BenchError::Io { path: "terrachunk".into(), source });
+    if a.replot {
+        bench::replot(&a.out)?;
+        println!("{}", a.out.join("bench.png").display());
+    } else if let Some(npy) = &a.export_grid {
+        let (label, hf) = bench::export_grid(one_dem()?, cut, config, npy)?;
+        let nodata = hf.heights.len() - hf.valid_count();
+        println!("{}: {} × {} float32 ({nodata} nodata as NaN) from {label}", npy.display(), hf.width, hf.height);
+    } else if let Some(obj) = &a.measure_mesh {
+        let (_, hf) = bench::cut_grid(one_dem()?, cut, &bench::load_options(config)?)?;
+        let m = bench::measure_mesh(&hf, obj)?;
+        println!("{}", serde_json::to_string_pretty(&m).expect("plain values"));
+    } else if let Some(manifest) = &a.peers {
+        let rows = bench::import_peers(one_dem()?, cut, config, manifest, &a.out)?;
+        println!("{} rows added to {}", rows.len(), a.out.join("bench.csv").display());
+    } else if let Some(fractions) = a.scale {
+        let rows = bench::scaling(&bench::ScaleOptions {
+            exe: exe()?,
+            dems: a.dem,
+            fractions,
+            errors: a.errors.unwrap_or_else(|| vec![1.0]),
+            runs: a.runs,
+            warmup: a.warmup,
+            threads: a.threads.unwrap_or_else(|| vec![1, 2]),
+            out: a.out.clone(),
+            config: a.config,
+        })?;
+        print!("{}", bench::scaling_summary(&rows));
+        println!("{}", a.out.join("scaling.csv").display());
+    } else {
+        let rows = bench::ladder(&bench::LadderOptions {
+            exe: exe()?,
+            dems: a.dem,
+            errors: a.errors.unwrap_or_else(|| vec![0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0]),
+            runs: a.runs,
+            warmup: a.warmup,
+            threads: a.threads.unwrap_or_else(|| vec![0]),
+            out: a.out.clone(),
+            config: a.config,
+            cut,
+            single_tin: a.single_tin,
+            append: a.append,
+        })?;
+        print_bench(&rows);
+        println!("{}", a.out.join("bench.csv").display());
+    }
+    Ok(())
+}
+
+fn print_bench(rows: &[bench::table::Row]) {
+    println!(
+        "{:<22} {:<30} {:>8} {:>11} {:>11} {:>10} {:>10} {:>9}",
+        "tool", "dem", "max err", "leaf tris", "all tris", "meas. max", "meas. RMS", "seconds"
+    );
+    let o = |v: Option<usize>| v.map(|v| v.to_string()).unwrap_or_default();
+    for r in rows {
+        println!(
+            "{:<22} {:<30} {:>8} {:>11} {:>11} {:>10.4} {:>10.4} {:>9.3}",
+            r.tool,
+            r.dem,
+            r.max_error_m,
+            o(r.leaf_triangles),
+            o(r.triangles),
+            r.measured_max_error_m.unwrap_or(f64::NAN),
+            r.measured_rms_error_m.unwrap_or(f64::NAN),
+            r.total_seconds().unwrap_or(f64::NAN)
+        );
     }
 }
 

@@ -620,7 +620,8 @@ struct TileFigures {
 }
 
 /// Surface (written triangles only) with normals and morph targets, then skirts.
-fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
+/// Public for the `.glb` micro-benchmark (`benches/stages.rs`).
+pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
     let mut remap = vec![u32::MAX; mesh.vertices.len()];
     let mut used = Vec::new();
     let mut indices = Vec::new();

@@ -1,6 +1,7 @@
 //! The one integration-test binary: each stage has its own module, and
 //! `common` holds the helpers they share.
 
+mod bench;
 mod common;
 mod dem;
 mod hard_cases;

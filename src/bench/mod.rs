@@ -1,0 +1,846 @@
+//! Bench: speed against error, measured the same way for terrachunk and for
+//! the tools it is compared with (issue 5, section 1).
+//!
+//! - [`ladder`]: for each DEM and each `max_error_m`, a warm-up and N timed
+//!   runs of the whole pipeline, each in its own `terrachunk build` child
+//!   process (so its peak memory, VmHWM, is its own), into a scratch folder
+//!   deleted afterwards. Medians of the stage times go to `bench.csv` with
+//!   the tree's figures and the *measured* error of the finest surface
+//!   ([`measure`] rasterises the leaf `.glb` files back onto the DEM).
+//!   Optionally the same for one unconstrained greedy TIN over the grid
+//!   (`terrachunk-single-tin`, in process), the baseline the nested
+//!   hierarchy is judged against.
+//! - [`import_peers`]: rows for other tools (pymartini, pydelatin, run by
+//!   `bench/peers.sh` on the grid [`export_grid`] wrote), whose meshes are
+//!   measured by the same [`measure`] code.
+//! - [`scaling`]: time and peak memory for centred windows holding 1/16,
+//!   1/4, ... of a DEM's samples, per thread count (`scaling.csv`).
+//! - [`plot`]: triangles and time against max error, log–log (PNG, SVG).
+
+pub mod grid;
+pub mod measure;
+pub mod plot;
+pub mod table;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+use serde::Deserialize;
+
+use crate::config::{Config, ConfigError};
+use crate::dem::{self, DemError, LoadOptions};
+use crate::heightfield::{Heightfield, void_fill};
+use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use crate::mesh::{ChunkMesh, MeshError};
+use crate::quadtree::ChunkKey;
+use crate::verify::VerifyError;
+use measure::ErrorStats;
+use table::Row;
+
+/// Why a benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// A DEM could not be loaded.
+    #[error(transparent)]
+    Dem(#[from] DemError),
+    /// The settings file is unusable.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A file the bench reads (mesh, manifest, CSV, tileset) is malformed.
+    #[error("{path}: {what}")]
+    Input {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// A file could not be encoded.
+    #[error("{path}: cannot write: {what}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        what: String,
+    },
+    /// A chunk file could not be read back.
+    #[error(transparent)]
+    Verify(#[from] VerifyError),
+    /// The single-TIN baseline failed.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// A `terrachunk build` child process failed.
+    #[error("terrachunk build of {dem} at {max_error_m} m failed ({status}): {stderr}")]
+    Build {
+        /// DEM label.
+        dem: String,
+        /// The error setting.
+        max_error_m: f64,
+        /// Exit status.
+        status: String,
+        /// What it said.
+        stderr: String,
+    },
+    /// The plot could not be drawn.
+    #[error("plot: {0}")]
+    Plot(String),
+    /// A setting of the bench itself is out of range.
+    #[error("{0}")]
+    Usage(String),
+}
+
+impl BenchError {
+    fn tiff(path: &Path, e: impl std::fmt::Display) -> Self {
+        BenchError::Write { path: path.into(), what: e.to_string() }
+    }
+
+    /// Process exit code: 2 for bad input or settings, 1 otherwise.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            BenchError::Dem(_) | BenchError::Config(_) | BenchError::Input { .. } | BenchError::Usage(_) => 2,
+            _ => 1,
+        }
+    }
+}
+
+/// Which part of a DEM a benchmark runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cut {
+    /// All of it, straight from its file.
+    Whole,
+    /// The top-left n × n samples, padded by repeating the last row or
+    /// column where the grid is smaller ([`grid::square`]): pymartini needs
+    /// n = 2^k + 1.
+    Square(usize),
+    /// The centred window with 1/f of the samples ([`grid::centred_window`]).
+    Window(u32),
+}
+
+/// A grid ready to benchmark: the heights in memory (for the error
+/// measurement and the in-process baselines) and a file `build` reads them
+/// from exactly.
+pub struct Prepared {
+    /// DEM label for the CSV and plot: file name, plus the cut.
+    pub label: String,
+    /// The heights as every tool sees them.
+    pub hf: Heightfield,
+    /// What `terrachunk build` is given.
+    pub build_input: PathBuf,
+    /// Extra `build` arguments that make it read `build_input` as `hf`.
+    pub build_args: Vec<String>,
+}
+
+/// Load options from a settings file (vertical scale, spacing).
+pub fn load_options(config: Option<&Path>) -> Result<LoadOptions, BenchError> {
+    let cfg = match config {
+        Some(p) => Config::from_file(p)?,
+        None => Config::default(),
+    };
+    Ok(LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })
+}
+
+/// Loads `dem` and cuts it; returns its label (file name, plus the cut) and
+/// the heights every tool of the benchmark sees.
+pub fn cut_grid(dem: &Path, cut: Cut, load: &LoadOptions) -> Result<(String, Heightfield), BenchError> {
+    let full = dem::load(&[dem.to_path_buf()], load)?;
+    let name = dem.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| dem.display().to_string());
+    let (label, hf) = match cut {
+        Cut::Whole => (name, full),
+        Cut::Square(n) => {
+            if n < 2 {
+                return Err(BenchError::Usage(format!("--square {n}: needs at least 2 samples a side")));
+            }
+            let (hf, change) = grid::square(&full, n);
+            let how = |d: i64, what: &str| match d {
+                0 => String::new(),
+                d if d > 0 => format!(", {d} {what} cropped"),
+                d => format!(", {} {what} added by repeating the last", -d),
+            };
+            eprintln!(
+                "{name}: top-left {n}×{n} of {}×{}{}{}",
+                full.width,
+                full.height,
+                how(change.columns, "columns"),
+                how(change.rows, "rows")
+            );
+            (format!("{name} {n}x{n}"), hf)
+        }
+        Cut::Window(f) => {
+            let hf = grid::centred_window(&full, f);
+            (format!("{name} 1/{f} {}x{}", hf.width, hf.height), hf)
+        }
+    };
+    Ok((table::clean(&label), hf))
+}
+
+/// [`cut_grid`], and for a cut a float32 TIFF of it under `work` that
+/// `build` reads with the original spacing and a vertical scale of 1 (the
+/// heights written are already scaled).
+pub fn prepare(dem: &Path, cut: Cut, load: &LoadOptions, work: &Path) -> Result<Prepared, BenchError> {
+    let (label, hf) = cut_grid(dem, cut, load)?;
+    if cut == Cut::Whole {
+        return Ok(Prepared { label, hf, build_input: dem.into(), build_args: vec![] });
+    }
+    std::fs::create_dir_all(work).map_err(|source| BenchError::Io { path: work.into(), source })?;
+    let path = work.join(format!("{}.tif", label.replace([' ', '/'], "_")));
+    grid::write_f32_tiff(&hf, &path)?;
+    let args = vec![
+        "--spacing".into(),
+        format!("{},{}", hf.spacing_m[0], hf.spacing_m[1]),
+        "--vertical-scale".into(),
+        "1".into(),
+    ];
+    Ok(Prepared { label, hf, build_input: path, build_args: args })
+}
+
+/// The parts of `build --report` JSON the bench reads.
+#[derive(Clone, Debug, Deserialize)]
+pub struct ChildReport {
+    /// Per level.
+    pub levels: Vec<ChildLevel>,
+    /// Bytes written.
+    pub bytes: u64,
+    /// Bytes per input sample.
+    pub bytes_per_sample: f64,
+    /// Wall seconds per stage.
+    pub seconds: ChildSeconds,
+    /// Thread-seconds per per-chunk stage.
+    pub thread_seconds: ChildThreadSeconds,
+    /// VmHWM of the build process.
+    pub peak_rss_bytes: Option<u64>,
+    /// Threads used.
+    pub threads: usize,
+}
+
+/// One level of a [`ChildReport`].
+#[derive(Clone, Debug, Deserialize)]
+pub struct ChildLevel {
+    /// Chunks.
+    pub chunks: usize,
+    /// Surface triangles.
+    pub triangles: usize,
+    /// Surface vertices.
+    pub vertices: usize,
+}
+
+/// Wall seconds of a [`ChildReport`].
+#[derive(Clone, Debug, Deserialize)]
+pub struct ChildSeconds {
+    /// Load.
+    pub load: f64,
+    /// Void fill and plan.
+    pub plan: f64,
+    /// All chunks: mesh, skirt, morph, encode, write.
+    pub chunks: f64,
+    /// tileset.json and rename.
+    pub index: f64,
+    /// Everything.
+    pub total: f64,
+}
+
+/// Thread-seconds of a [`ChildReport`].
+#[derive(Clone, Debug, Deserialize)]
+pub struct ChildThreadSeconds {
+    /// Greedy insertion.
+    pub mesh: f64,
+    /// Normals, morph targets, skirts.
+    pub skirt_morph: f64,
+    /// Encoding and writing.
+    pub write: f64,
+}
+
+impl ChildReport {
+    /// Wall seconds load, plan, mesh, skirt+morph, write, index, total. The
+    /// chunk stage runs its three parts interleaved on every thread, so its
+    /// wall time is split in proportion to their thread-seconds.
+    pub fn stage_seconds(&self) -> [f64; 7] {
+        let s = &self.seconds;
+        let t = &self.thread_seconds;
+        let sum = t.mesh + t.skirt_morph + t.write;
+        let share = |x: f64| if sum > 0.0 { s.chunks * x / sum } else { 0.0 };
+        [s.load, s.plan, share(t.mesh), share(t.skirt_morph), share(t.write), s.index, s.total]
+    }
+}
+
+/// A scratch folder removed when dropped, however the bench ends.
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn scratch(out: &Path) -> Result<Scratch, BenchError> {
+    let dir = out.join(format!(".runs-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io { path: dir.clone(), source })?;
+    Ok(Scratch(dir))
+}
+
+/// Runs `exe build` once into `dir/tileset` (removed first, outside the
+/// timing) and returns its report.
+fn build_once(
+    exe: &Path,
+    p: &Prepared,
+    config: Option<&Path>,
+    max_error_m: f64,
+    threads: usize,
+    dir: &Path,
+) -> Result<ChildReport, BenchError> {
+    let out = dir.join("tileset");
+    let report = dir.join("report.json");
+    let _ = std::fs::remove_dir_all(&out);
+    let mut cmd = Command::new(exe);
+    cmd.arg("build").arg(&p.build_input).arg("-o").arg(&out).arg("--report").arg(&report);
+    cmd.args(["--max-error", &max_error_m.to_string(), "--threads", &threads.to_string()]);
+    if let Some(c) = config {
+        cmd.arg("--config").arg(c);
+    }
+    cmd.args(&p.build_args);
+    let o = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .output()
+        .map_err(|source| BenchError::Io { path: exe.into(), source })?;
+    if !o.status.success() {
+        return Err(BenchError::Build {
+            dem: p.label.clone(),
+            max_error_m,
+            status: o.status.to_string(),
+            stderr: String::from_utf8_lossy(&o.stderr).trim().to_string(),
+        });
+    }
+    let text = std::fs::read(&report).map_err(|source| BenchError::Io { path: report.clone(), source })?;
+    serde_json::from_slice(&text).map_err(|e| BenchError::Input { path: report, what: format!("report: {e}") })
+}
+
+/// Runs a warm-up and `runs` timed builds; returns the reports of the timed ones.
+#[allow(clippy::too_many_arguments)]
+fn timed_builds(
+    exe: &Path,
+    p: &Prepared,
+    config: Option<&Path>,
+    max_error_m: f64,
+    threads: usize,
+    warmup: usize,
+    runs: usize,
+    dir: &Path,
+) -> Result<Vec<ChildReport>, BenchError> {
+    for _ in 0..warmup {
+        build_once(exe, p, config, max_error_m, threads, dir)?;
+    }
+    (0..runs.max(1)).map(|_| build_once(exe, p, config, max_error_m, threads, dir)).collect()
+}
+
+/// The median (mean of the middle two for an even count).
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// Medians per stage over the reports.
+fn median_stages(reports: &[ChildReport]) -> [f64; 7] {
+    let all: Vec<[f64; 7]> = reports.iter().map(ChildReport::stage_seconds).collect();
+    std::array::from_fn(|k| median(all.iter().map(|s| s[k]).collect()))
+}
+
+/// What [`ladder`] runs.
+#[derive(Clone, Debug)]
+pub struct LadderOptions {
+    /// The `terrachunk` binary that runs each build.
+    pub exe: PathBuf,
+    /// DEMs, each benchmarked on its own.
+    pub dems: Vec<PathBuf>,
+    /// The `max_error_m` ladder, metres.
+    pub errors: Vec<f64>,
+    /// Timed runs per configuration (medians are taken over them).
+    pub runs: usize,
+    /// Untimed runs first.
+    pub warmup: usize,
+    /// Thread counts (0 = one per core).
+    pub threads: Vec<usize>,
+    /// Where `bench.csv`, `bench.png` and `bench.svg` go.
+    pub out: PathBuf,
+    /// Base settings for every build.
+    pub config: Option<PathBuf>,
+    /// Which part of each DEM.
+    pub cut: Cut,
+    /// Also time one unconstrained greedy TIN over the grid.
+    pub single_tin: bool,
+    /// Add to an existing `bench.csv` instead of starting a new one.
+    pub append: bool,
+}
+
+/// Runs the ladder (module comment), writes `bench.csv` and the plot, and
+/// returns the new rows.
+pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
+    check_errors(&o.errors)?;
+    std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
+    let work = scratch(&o.out)?;
+    let load = load_options(o.config.as_deref())?;
+    let mut rows = Vec::new();
+    for dem in &o.dems {
+        let p = prepare(dem, o.cut, &load, &work.0)?;
+        let samples = p.hf.width * p.hf.height;
+        let base = Row {
+            dem: p.label.clone(),
+            width: p.hf.width,
+            height: p.hf.height,
+            samples,
+            runs: o.runs.max(1),
+            ..Row::default()
+        };
+        for &e in &o.errors {
+            let mut measured = None;
+            for &t in &o.threads {
+                let reports = timed_builds(&o.exe, &p, o.config.as_deref(), e, t, o.warmup, o.runs, &work.0)?;
+                // Every run writes the same bytes (tested), so the last one's
+                // files stand for all of them.
+                let leaves = match measured {
+                    Some(m) => m,
+                    None => *measured.insert(measure::leaf_errors(&work.0.join("tileset"), &p.hf)?),
+                };
+                let last = reports.last().expect("at least one run");
+                let seconds = median_stages(&reports);
+                eprintln!(
+                    "terrachunk {} at {e} m on {} threads: {} leaf triangles, measured max error {:.4} m, median {:.3} s",
+                    p.label, last.threads, leaves.leaf_triangles, leaves.errors.max_error_m, seconds[6]
+                );
+                rows.push(Row {
+                    tool: "terrachunk".into(),
+                    max_error_m: e,
+                    levels: Some(last.levels.len()),
+                    chunks: Some(last.levels.iter().map(|l| l.chunks).sum()),
+                    triangles: Some(last.levels.iter().map(|l| l.triangles).sum()),
+                    leaf_triangles: Some(leaves.leaf_triangles),
+                    vertices: Some(last.levels.iter().map(|l| l.vertices).sum()),
+                    bytes: Some(last.bytes),
+                    bytes_per_sample: Some(last.bytes_per_sample),
+                    measured_max_error_m: Some(leaves.errors.max_error_m),
+                    measured_rms_error_m: Some(leaves.errors.rms_error_m),
+                    uncovered_samples: Some(leaves.errors.uncovered_samples),
+                    seconds: seconds.map(Some),
+                    peak_rss_bytes: reports.iter().filter_map(|r| r.peak_rss_bytes).max(),
+                    threads: last.threads,
+                    ..base.clone()
+                });
+            }
+            if o.single_tin {
+                let s = single_tin_timed(&p.hf, e, o.warmup, o.runs)?;
+                eprintln!(
+                    "terrachunk-single-tin {} at {e} m: {} triangles, measured max error {:.4} m, median {:.3} s",
+                    p.label, s.triangles, s.errors.max_error_m, s.seconds
+                );
+                rows.push(single_tin_row(&base, e, &s));
+            }
+        }
+    }
+    let csv = o.out.join("bench.csv");
+    table::write(&csv, &rows, o.append)?;
+    replot(&o.out)?;
+    Ok(rows)
+}
+
+fn check_errors(errors: &[f64]) -> Result<(), BenchError> {
+    if errors.is_empty() || !errors.iter().all(|e| e.is_finite() && *e > 0.0) {
+        return Err(BenchError::Usage(format!(
+            "--errors {errors:?}: every max error must be a finite number of metres > 0"
+        )));
+    }
+    Ok(())
+}
+
+/// The single greedy TIN baseline at one error.
+#[derive(Clone, Copy, Debug)]
+pub struct SingleTin {
+    /// Triangles written (those over data).
+    pub triangles: usize,
+    /// Vertices.
+    pub vertices: usize,
+    /// Median seconds of `build_chunk` (the grid in memory, nothing written).
+    pub seconds: f64,
+    /// Measured against the grid.
+    pub errors: ErrorStats,
+}
+
+/// One unconstrained greedy TIN over the whole grid (no chunks, no dividing
+/// lines, no vertex limit): the mesher terrachunk nests, on its own.
+pub fn single_tin(hf: &Heightfield, max_error_m: f64) -> Result<ChunkMesh, MeshError> {
+    let filled = void_fill(hf);
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let spec = ChunkSpec {
+        key: ChunkKey { level: 0, x: 0, y: 0 },
+        footprint: ((0, hf.width as u32 - 1), (0, hf.height as u32 - 1)),
+        delta_m: max_error_m,
+        parent: None,
+        max_vertices: usize::MAX,
+        dividing_lines: false,
+    };
+    build_chunk(&grid, &spec)
+}
+
+fn single_tin_timed(hf: &Heightfield, max_error_m: f64, warmup: usize, runs: usize) -> Result<SingleTin, BenchError> {
+    for _ in 0..warmup {
+        single_tin(hf, max_error_m)?;
+    }
+    let mut secs = Vec::new();
+    let mut mesh = None;
+    for _ in 0..runs.max(1) {
+        let t = Instant::now();
+        let m = single_tin(hf, max_error_m)?;
+        secs.push(t.elapsed().as_secs_f64());
+        mesh = Some(m);
+    }
+    let mesh = mesh.expect("at least one run");
+    let tris: Vec<[u32; 3]> = mesh.triangles.iter().zip(&mesh.kept).filter(|(_, k)| **k).map(|(t, _)| *t).collect();
+    Ok(SingleTin {
+        triangles: tris.len(),
+        vertices: mesh.vertices.len(),
+        seconds: median(secs),
+        errors: measure::mesh_errors(hf, &mesh.vertices, &tris),
+    })
+}
+
+fn single_tin_row(base: &Row, e: f64, s: &SingleTin) -> Row {
+    let mut seconds = [None; 7];
+    seconds[2] = Some(s.seconds);
+    seconds[6] = Some(s.seconds);
+    Row {
+        tool: "terrachunk-single-tin".into(),
+        max_error_m: e,
+        levels: Some(1),
+        chunks: Some(1),
+        triangles: Some(s.triangles),
+        leaf_triangles: Some(s.triangles),
+        vertices: Some(s.vertices),
+        measured_max_error_m: Some(s.errors.max_error_m),
+        measured_rms_error_m: Some(s.errors.rms_error_m),
+        uncovered_samples: Some(s.errors.uncovered_samples),
+        seconds,
+        threads: 1,
+        ..base.clone()
+    }
+}
+
+/// Redraws `dir/bench.png` and `dir/bench.svg` from `dir/bench.csv`.
+pub fn replot(dir: &Path) -> Result<(), BenchError> {
+    let rows = table::read(&dir.join("bench.csv"))?;
+    plot::plot(&rows, &dir.join("bench.png"), &dir.join("bench.svg"))
+}
+
+/// Writes the grid a benchmark of `dem` with `cut` runs on as `.npy`
+/// ([`grid::write_npy`]), for the Python peers. Returns its label and heights.
+pub fn export_grid(
+    dem: &Path,
+    cut: Cut,
+    config: Option<&Path>,
+    npy: &Path,
+) -> Result<(String, Heightfield), BenchError> {
+    let (label, hf) = cut_grid(dem, cut, &load_options(config)?)?;
+    grid::write_npy(&hf, npy)?;
+    Ok((label, hf))
+}
+
+/// A mesh measured against a grid.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct MeshMeasure {
+    /// Triangles in the file.
+    pub triangles: usize,
+    /// Vertices in the file.
+    pub vertices: usize,
+    /// Errors.
+    #[serde(flatten)]
+    pub errors: ErrorStats,
+}
+
+/// Measures an OBJ mesh (grid units, [`measure::read_obj`]) against `hf`.
+pub fn measure_mesh(hf: &Heightfield, obj: &Path) -> Result<MeshMeasure, BenchError> {
+    let (verts, tris) = measure::read_obj(obj)?;
+    Ok(MeshMeasure { triangles: tris.len(), vertices: verts.len(), errors: measure::mesh_errors(hf, &verts, &tris) })
+}
+
+/// Adds the rows of other tools to `out/bench.csv` and redraws the plot.
+///
+/// `manifest` is a CSV with the header `tool,max_error_m,seconds,runs,mesh`:
+/// one line per mesh a peer made, its median seconds over `runs` timed runs
+/// and the OBJ file (relative to the manifest) holding the mesh in grid
+/// units. Each mesh is measured against the grid of `dem` cut by `cut`,
+/// which must be the grid the peer was given.
+pub fn import_peers(
+    dem: &Path,
+    cut: Cut,
+    config: Option<&Path>,
+    manifest: &Path,
+    out: &Path,
+) -> Result<Vec<Row>, BenchError> {
+    let text = std::fs::read_to_string(manifest).map_err(|source| BenchError::Io { path: manifest.into(), source })?;
+    let (label, hf) = cut_grid(dem, cut, &load_options(config)?)?;
+    let bad =
+        |n: usize, what: &str| BenchError::Input { path: manifest.into(), what: format!("line {}: {what}", n + 1) };
+    let mut lines = text.lines().enumerate();
+    if lines.next().map(|l| l.1.trim()) != Some("tool,max_error_m,seconds,runs,mesh") {
+        return Err(bad(0, "header must be tool,max_error_m,seconds,runs,mesh"));
+    }
+    let dir = manifest.parent().unwrap_or(Path::new("."));
+    let mut rows = Vec::new();
+    for (n, line) in lines.filter(|l| !l.1.trim().is_empty()) {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != 5 {
+            return Err(bad(n, "expected 5 fields"));
+        }
+        let max_error_m: f64 = f[1].parse().map_err(|_| bad(n, "bad max_error_m"))?;
+        let seconds: f64 = f[2].parse().map_err(|_| bad(n, "bad seconds"))?;
+        let runs: usize = f[3].parse().map_err(|_| bad(n, "bad runs"))?;
+        let m = measure_mesh(&hf, &dir.join(f[4]))?;
+        eprintln!(
+            "{} {} at {max_error_m} m: {} triangles, measured max error {:.4} m (RMS {:.4}), median {seconds:.3} s",
+            f[0], label, m.triangles, m.errors.max_error_m, m.errors.rms_error_m
+        );
+        let mut secs = [None; 7];
+        secs[2] = Some(seconds);
+        secs[6] = Some(seconds);
+        rows.push(Row {
+            tool: table::clean(f[0]),
+            dem: label.clone(),
+            width: hf.width,
+            height: hf.height,
+            samples: hf.width * hf.height,
+            max_error_m,
+            levels: Some(1),
+            chunks: Some(1),
+            triangles: Some(m.triangles),
+            leaf_triangles: Some(m.triangles),
+            vertices: Some(m.vertices),
+            measured_max_error_m: Some(m.errors.max_error_m),
+            measured_rms_error_m: Some(m.errors.rms_error_m),
+            uncovered_samples: Some(m.errors.uncovered_samples),
+            seconds: secs,
+            runs,
+            threads: 1,
+            ..Row::default()
+        });
+    }
+    std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
+    table::write(&out.join("bench.csv"), &rows, true)?;
+    replot(out)?;
+    Ok(rows)
+}
+
+/// What [`scaling`] runs.
+#[derive(Clone, Debug)]
+pub struct ScaleOptions {
+    /// The `terrachunk` binary.
+    pub exe: PathBuf,
+    /// DEMs.
+    pub dems: Vec<PathBuf>,
+    /// Each run keeps 1/f of the samples (a centred window); 1 = the whole file.
+    pub fractions: Vec<u32>,
+    /// max_error_m values.
+    pub errors: Vec<f64>,
+    /// Timed runs.
+    pub runs: usize,
+    /// Untimed runs first.
+    pub warmup: usize,
+    /// Thread counts.
+    pub threads: Vec<usize>,
+    /// Where `scaling.csv` goes.
+    pub out: PathBuf,
+    /// Base settings.
+    pub config: Option<PathBuf>,
+}
+
+/// One configuration of a scaling run.
+#[derive(Clone, Debug)]
+pub struct ScaleRow {
+    /// DEM label (with the window).
+    pub dem: String,
+    /// 1/f of the samples.
+    pub fraction: u32,
+    /// Grid columns.
+    pub width: usize,
+    /// Grid rows.
+    pub height: usize,
+    /// max_error_m.
+    pub max_error_m: f64,
+    /// Threads.
+    pub threads: usize,
+    /// Levels.
+    pub levels: usize,
+    /// Chunks.
+    pub chunks: usize,
+    /// Surface triangles, all levels.
+    pub triangles: usize,
+    /// Median seconds per stage (as in `bench.csv`).
+    pub seconds: [f64; 7],
+    /// Largest VmHWM of the timed runs.
+    pub peak_rss_bytes: Option<u64>,
+    /// Timed runs.
+    pub runs: usize,
+}
+
+impl ScaleRow {
+    /// Samples in the window.
+    pub fn samples(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+/// Runs the scaling configurations and writes `out/scaling.csv`.
+pub fn scaling(o: &ScaleOptions) -> Result<Vec<ScaleRow>, BenchError> {
+    check_errors(&o.errors)?;
+    if o.fractions.is_empty() || o.fractions.contains(&0) {
+        return Err(BenchError::Usage(format!("--scale {:?}: fractions are whole numbers ≥ 1", o.fractions)));
+    }
+    std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
+    let work = scratch(&o.out)?;
+    let load = load_options(o.config.as_deref())?;
+    let mut rows = Vec::new();
+    for dem in &o.dems {
+        for &f in &o.fractions {
+            let cut = if f == 1 { Cut::Whole } else { Cut::Window(f) };
+            let p = prepare(dem, cut, &load, &work.0)?;
+            for &e in &o.errors {
+                for &t in &o.threads {
+                    let reports = timed_builds(&o.exe, &p, o.config.as_deref(), e, t, o.warmup, o.runs, &work.0)?;
+                    let last = reports.last().expect("at least one run");
+                    let row = ScaleRow {
+                        dem: p.label.clone(),
+                        fraction: f,
+                        width: p.hf.width,
+                        height: p.hf.height,
+                        max_error_m: e,
+                        threads: last.threads,
+                        levels: last.levels.len(),
+                        chunks: last.levels.iter().map(|l| l.chunks).sum(),
+                        triangles: last.levels.iter().map(|l| l.triangles).sum(),
+                        seconds: median_stages(&reports),
+                        peak_rss_bytes: reports.iter().filter_map(|r| r.peak_rss_bytes).max(),
+                        runs: reports.len(),
+                    };
+                    eprintln!(
+                        "{} at {e} m on {} threads: median {:.3} s, peak {:.0} MB",
+                        row.dem,
+                        row.threads,
+                        row.seconds[6],
+                        row.peak_rss_bytes.unwrap_or(0) as f64 / 1e6
+                    );
+                    rows.push(row);
+                }
+            }
+            if cut != Cut::Whole {
+                let _ = std::fs::remove_file(&p.build_input);
+            }
+        }
+    }
+    write_scaling(&o.out.join("scaling.csv"), &rows)?;
+    Ok(rows)
+}
+
+fn write_scaling(path: &Path, rows: &[ScaleRow]) -> Result<(), BenchError> {
+    let mut s = String::from(
+        "dem,fraction,width,height,samples,max_error_m,threads,levels,chunks,triangles,\
+         s_load,s_plan,s_mesh,s_skirt_morph,s_write,s_index,s_total,us_per_sample,runs,peak_rss_bytes,rss_bytes_per_sample\n",
+    );
+    for r in rows {
+        let n = r.samples() as f64;
+        let rss = r.peak_rss_bytes.map(|b| b.to_string()).unwrap_or_default();
+        let rss_per = r.peak_rss_bytes.map(|b| format!("{:.2}", b as f64 / n)).unwrap_or_default();
+        let secs: Vec<String> = r.seconds.iter().map(|s| format!("{s:.6}")).collect();
+        s += &format!(
+            "{},1/{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{}\n",
+            r.dem,
+            r.fraction,
+            r.width,
+            r.height,
+            r.samples(),
+            r.max_error_m,
+            r.threads,
+            r.levels,
+            r.chunks,
+            r.triangles,
+            secs.join(","),
+            r.seconds[6] / n * 1e6,
+            r.runs,
+            rss,
+            rss_per
+        );
+    }
+    std::fs::write(path, s).map_err(|source| BenchError::Io { path: path.into(), source })
+}
+
+/// How cost grows, as text: for each (DEM, error, threads) the exponent
+/// `b` in time ∝ samples^b (and memory ∝ samples^b) between successive
+/// windows, and the speed-up of each thread count over the smallest.
+pub fn scaling_summary(rows: &[ScaleRow]) -> String {
+    let mut s = String::new();
+    s += &format!(
+        "{:<44} {:>10} {:>7} {:>9} {:>10} {:>9} {:>8} {:>8}\n",
+        "dem", "samples", "threads", "seconds", "µs/sample", "peak MB", "b(time)", "b(mem)"
+    );
+    for (k, r) in rows.iter().enumerate() {
+        // The previous window of the same DEM, error and threads.
+        let prev = rows[..k].iter().rev().find(|q| {
+            q.threads == r.threads
+                && q.max_error_m == r.max_error_m
+                && q.fraction != r.fraction
+                && same_dem(&q.dem, &r.dem)
+        });
+        let exp = |a: f64, b: f64, na: f64, nb: f64| {
+            if a > 0.0 && b > 0.0 && na != nb { format!("{:.2}", (b / a).ln() / (nb / na).ln()) } else { "-".into() }
+        };
+        let n = r.samples() as f64;
+        let (bt, bm) = match prev {
+            Some(q) => (
+                exp(q.seconds[6], r.seconds[6], q.samples() as f64, n),
+                exp(q.peak_rss_bytes.unwrap_or(0) as f64, r.peak_rss_bytes.unwrap_or(0) as f64, q.samples() as f64, n),
+            ),
+            None => ("-".into(), "-".into()),
+        };
+        s += &format!(
+            "{:<44} {:>10} {:>7} {:>9.3} {:>10.3} {:>9.1} {:>8} {:>8}\n",
+            format!("{} @ {} m", r.dem, r.max_error_m),
+            r.samples(),
+            r.threads,
+            r.seconds[6],
+            r.seconds[6] / n * 1e6,
+            r.peak_rss_bytes.unwrap_or(0) as f64 / 1e6,
+            bt,
+            bm
+        );
+    }
+    for r in rows {
+        let base = rows.iter().filter(|q| q.dem == r.dem && q.max_error_m == r.max_error_m).min_by_key(|q| q.threads);
+        if let Some(b) = base.filter(|b| b.threads != r.threads) {
+            s += &format!(
+                "{} @ {} m: {} threads run at {:.2}× the speed of {}\n",
+                r.dem,
+                r.max_error_m,
+                r.threads,
+                b.seconds[6] / r.seconds[6],
+                b.threads
+            );
+        }
+    }
+    s
+}
+
+/// Whether two scaling labels name the same DEM file (they differ in the window).
+fn same_dem(a: &str, b: &str) -> bool {
+    a.split(' ').next() == b.split(' ').next()
+}
