@@ -130,6 +130,18 @@ pub struct Prim {
     pub uv1: Vec<[f32; 2]>,
 }
 
+impl Prim {
+    /// The positions in grid coordinates (column, row) with their heights.
+    pub fn grid_vertices(&self, spacing: [f64; 2]) -> Vec<MeshVertex> {
+        self.positions.iter().map(|p| to_grid(p, spacing)).collect()
+    }
+}
+
+/// A world position (metres) in grid coordinates, with its height.
+fn to_grid(p: &[f64; 3], spacing: [f64; 2]) -> MeshVertex {
+    MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1], ph: p[1] }
+}
+
 fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
     VerifyError::File { path: path.into(), what: what.into() }
 }
@@ -716,12 +728,7 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         problems.push(format!("footprint {:?} is outside the {}×{} grid", c.footprint, hf.width, hf.height));
         return f64::INFINITY;
     }
-    let verts: Vec<MeshVertex> = c
-        .surface
-        .positions
-        .iter()
-        .map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1], ph: p[1] })
-        .collect();
+    let verts = c.surface.grid_vertices(spacing);
     let tol = 1e-4 * ((x1 - x0) + (z1 - z0)) as f64;
     if verts.iter().any(|v| {
         v.x < f64::from(x0) - tol || v.x > f64::from(x1) + tol || v.z < f64::from(z0) - tol || v.z > f64::from(z1) + tol
@@ -786,8 +793,8 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
 
 /// Morph targets on the parent surface; child triangles inside parent ones.
 fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut Vec<String>) -> f64 {
-    let to_grid = |q: &[f64; 3]| MeshVertex { x: q[0] / spacing[0], z: q[2] / spacing[1], h: q[1], ph: q[1] };
-    let pv: Vec<MeshVertex> = p.surface.positions.iter().map(to_grid).collect();
+    let to_grid = |q: &[f64; 3]| to_grid(q, spacing);
+    let pv = p.surface.grid_vertices(spacing);
     let loc = SurfaceLocator::from_parts(&pv, &p.surface.triangles);
     // f32 rounding of both chunks' chunk-local coordinates: horizontally (in
     // metres and in grid units), where a slope turns it into a height
@@ -800,7 +807,7 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
     };
     let (mut gap, mut worst_excess): (f64, f64) = (0.0, 0.0);
     let mut missing = 0;
-    let cv: Vec<MeshVertex> = c.surface.positions.iter().map(to_grid).collect();
+    let cv = c.surface.grid_vertices(spacing);
     let skirt_tops: Vec<(MeshVertex, f64)> = c
         .skirt
         .iter()

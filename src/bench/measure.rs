@@ -198,12 +198,7 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
                     what: format!("footprint {:?} is outside the grid", c.footprint),
                 });
             }
-            let verts: Vec<MeshVertex> = c
-                .surface
-                .positions
-                .iter()
-                .map(|p| MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1], ph: p[1] })
-                .collect();
+            let verts = c.surface.grid_vertices(spacing);
             let window = Window { x0, x1, z0, z1 };
             // A border sample is owned by the chunk east / south of it.
             let owned = Window {
