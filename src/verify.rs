@@ -132,14 +132,32 @@ pub struct Prim {
 
 impl Prim {
     /// The positions in grid coordinates (column, row) with their heights.
+    /// A coordinate within f32 rounding of a whole sample index is that
+    /// index: the vertex is the sample. Unsnapped, steep ground turns the
+    /// rounding of a vertex that *is* a sample into an apparent error there
+    /// (5 km of noise on 1 mm cells: 10⁻⁶ cells of rounding read as 5 mm).
     pub fn grid_vertices(&self, spacing: [f64; 2]) -> Vec<MeshVertex> {
-        self.positions.iter().map(|p| to_grid(p, spacing)).collect()
+        let snap = self.snap(spacing);
+        self.positions.iter().map(|p| to_grid(p, spacing, snap)).collect()
+    }
+
+    /// The f32 rounding of this primitive's chunk-local x and z, in grid
+    /// units (twice the half-ulp bound of its largest coordinate).
+    fn snap(&self, spacing: [f64; 2]) -> [f64; 2] {
+        let r = |extent: f64, s: f64| extent * f64::from(f32::EPSILON) / s;
+        [r(self.local_extent[0], spacing[0]), r(self.local_extent[2], spacing[1])]
     }
 }
 
-/// A world position (metres) in grid coordinates, with its height.
-fn to_grid(p: &[f64; 3], spacing: [f64; 2]) -> MeshVertex {
-    MeshVertex { x: p[0] / spacing[0], z: p[2] / spacing[1], h: p[1], ph: p[1] }
+/// A world position (metres) in grid coordinates, with its height, each
+/// coordinate snapped to a whole index when within `snap` of it.
+fn to_grid(p: &[f64; 3], spacing: [f64; 2], snap: [f64; 2]) -> MeshVertex {
+    let grid = |v: f64, snap: f64| {
+        let r = v.round();
+        if (v - r).abs() <= snap { r } else { v }
+    };
+    let (x, z) = (grid(p[0] / spacing[0], snap[0]), grid(p[2] / spacing[1], snap[1]));
+    MeshVertex { x, z, h: p[1], ph: p[1] }
 }
 
 fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
@@ -793,7 +811,6 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
 
 /// Morph targets on the parent surface; child triangles inside parent ones.
 fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut Vec<String>) -> f64 {
-    let to_grid = |q: &[f64; 3]| to_grid(q, spacing);
     let pv = p.surface.grid_vertices(spacing);
     let loc = SurfaceLocator::from_parts(&pv, &p.surface.triangles);
     // f32 rounding of both chunks' chunk-local coordinates: horizontally (in
@@ -811,7 +828,7 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
     let skirt_tops: Vec<(MeshVertex, f64)> = c
         .skirt
         .iter()
-        .flat_map(|s| s.positions.iter().map(to_grid).zip(s.morph_dy.iter().copied()))
+        .flat_map(|s| s.grid_vertices(spacing).into_iter().zip(s.morph_dy.iter().copied()))
         .filter(|(_, dy)| *dy != 0.0)
         .collect();
     for (v, dy) in cv.iter().copied().zip(c.surface.morph_dy.iter().copied()).chain(skirt_tops) {

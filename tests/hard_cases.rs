@@ -237,6 +237,27 @@ fn millimetre_and_ten_kilometre_spacing() {
     assert_eq!(b.report.spacing_m, [0.001, 0.001]);
 }
 
+/// Found by the property tests: 5 km of white noise on 1 mm cells at a
+/// 2.5 mm bound. Every sample is a vertex, but its f32 chunk-local position
+/// is 10⁻⁶ cells off, which on slopes of 5 km a cell read back as 5 mm of
+/// error at the sample itself. `verify` now takes a coordinate within f32
+/// rounding of a whole index to be that sample.
+#[test]
+fn kilometres_of_noise_on_millimetre_cells_verify_at_their_vertices() {
+    let tmp = tempfile::tempdir().unwrap();
+    let noise = |i: usize, j: usize| {
+        let mut x = (i as u64) << 32 | j as u64;
+        x = (x ^ (x >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        x = (x ^ (x >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        x ^= x >> 32;
+        (x >> 11) as f64 / (1u64 << 53) as f64 * 5000.0
+    };
+    let dem = write_asc_spaced(tmp.path(), "noise.asc", 14, 17, 0.001, noise);
+    let b = survives(&dem, config(0.0025, 16));
+    assert!(leaf(&b).max_error_m <= 0.0025);
+    assert_eq!(leaf(&b).vertices, 14 * 17, "noise keeps every sample");
+}
+
 // ------------------------------------------------------------ grid shapes
 
 #[test]

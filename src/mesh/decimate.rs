@@ -291,9 +291,10 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
 }
 
 /// Cuts every triangle the line `x = coord` (`vertical`) or `z = coord`
-/// crosses, at points on the crossed edges that take the parent surface's
-/// height (or the sample's, where a crossing falls on a sample), so that the
-/// line becomes a chain of fixed edges. A crossing shared by two triangles is
+/// crosses, at points on the crossed edges, so that the line becomes a chain
+/// of fixed edges. A cut point's morph target is the parent surface's height
+/// there; its own height is the line's profile (the sample's, where a
+/// crossing falls on a sample). A crossing shared by two triangles is
 /// computed once.
 fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, nested: bool) {
     let c = f64::from(coord);
@@ -308,16 +309,26 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
             let s = (c - across(&p)) / (across(&q) - across(&p));
             let mut t = along(&p) + s * (along(&q) - along(&p));
             let ph = p.ph + s * (q.ph - p.ph);
-            let mut h = ph;
-            // A crossing that falls on a sample takes the sample itself (its
-            // fill over nodata), so the line's own samples decide the line
-            // wherever they can, and a border crossing (always on a sample)
-            // is the same vertex the neighbour across that border makes.
-            if (t - t.round()).abs() < 1e-6 {
-                t = t.round();
+            let at = |t: f64| {
                 let (j, i) = if vertical { (coord, t as u32) } else { (t as u32, coord) };
-                h = grid.vertex_height(i as usize, j as usize);
-            }
+                grid.vertex_height(i as usize, j as usize)
+            };
+            // A crossing that falls on a sample takes the sample itself (its
+            // fill over nodata), so a border crossing (always on a sample) is
+            // the same vertex the neighbour across that border makes. Between
+            // samples it takes the line's own profile, not the parent's
+            // height there: that can be δ away, and where the line's
+            // refinement puts a sample a hair from the crossing, the two
+            // would make a near-vertical wall that the next level's cuts
+            // shred into slivers no f32 file can place (issue 3). Only the
+            // morph target must lie on the parent surface.
+            let h = if (t - t.round()).abs() < 1e-6 {
+                t = t.round();
+                at(t)
+            } else {
+                let (lo, hi) = (t.floor(), t.ceil());
+                at(lo) + (t - lo) * (at(hi) - at(lo))
+            };
             let (x, z) = if vertical { (c, t) } else { (t, c) };
             pts.push(V { x, z, h, ph: if nested { ph } else { h } });
             (pts.len() - 1) as u32
