@@ -31,6 +31,11 @@ pub struct Config {
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default "fast".
     pub vertex_cache: VertexCache,
+    /// Build every chunk down to the deepest level, even below one that
+    /// already meets `max_error_m` (flat ground). For measuring what the
+    /// error-bounded tree saves (`terrachunk bench --savings`); the output is
+    /// as valid, only larger. Default false.
+    pub complete_tree: bool,
     /// Widest a chunk's texture may be, in texels per side. Where a chunk
     /// would need more to keep T_g ≤ δ/τ_max, the cap wins and the build
     /// says so (the bound then does not hold for that level). Range:
@@ -92,6 +97,7 @@ impl Default for Config {
             spacing_m: None,
             leaf_cells: None,
             vertex_cache: VertexCache::Fast,
+            complete_tree: false,
             max_texture_px: 512,
             texture_format: TextureFormat::Png,
             jpeg_quality: 85,

@@ -64,6 +64,10 @@ enum Command {
         /// Also write a tangent-space normal map from the full-resolution DEM.
         #[arg(long)]
         normal_map: bool,
+        /// Build every chunk to the deepest level, even below one that already
+        /// meets the error (to measure what the error-bounded tree saves).
+        #[arg(long)]
+        complete_tree: bool,
         /// Replace an existing output directory.
         #[arg(long)]
         force: bool,
@@ -141,6 +145,11 @@ struct BenchArgs {
     /// Redraw OUT/bench.png and OUT/bench.svg from OUT/bench.csv.
     #[arg(long, group = "mode")]
     replot: bool,
+    /// Build each DEM as shipped and as a complete tree (every chunk to the
+    /// deepest level) at each error; compare chunks, triangles and bytes
+    /// (OUT/savings.csv, and a Markdown table on stdout) [default errors: 1].
+    #[arg(long, group = "mode", conflicts_with_all = ["square", "single_tin"])]
+    savings: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -186,6 +195,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             jpeg_quality,
             max_texture_px,
             normal_map,
+            complete_tree,
             force,
             report,
         } => {
@@ -227,6 +237,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 cfg.max_texture_px = v;
             }
             cfg.normal_map |= normal_map;
+            cfg.complete_tree |= complete_tree;
             let opts = BuildOptions {
                 inputs: dem,
                 out: out.clone(),
@@ -376,6 +387,17 @@ fn run_bench(a: BenchArgs) -> Result<(), bench::BenchError> {
     } else if let Some(manifest) = &a.peers {
         let rows = bench::import_peers(one_dem()?, cut, config, manifest, &a.out)?;
         println!("{} rows added to {}", rows.len(), a.out.join("bench.csv").display());
+    } else if a.savings {
+        let rows = bench::savings::savings(&bench::savings::SavingsOptions {
+            exe: exe()?,
+            dems: a.dem,
+            errors: a.errors.unwrap_or_else(|| vec![1.0]),
+            threads: a.threads.and_then(|t| t.first().copied()).unwrap_or(0),
+            out: a.out.clone(),
+            config: a.config,
+        })?;
+        print!("{}", bench::savings::markdown(&rows));
+        println!("{}", a.out.join("savings.csv").display());
     } else if let Some(fractions) = a.scale {
         let rows = bench::scaling(&bench::ScaleOptions {
             exe: exe()?,

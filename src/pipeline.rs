@@ -595,7 +595,8 @@ impl Run<'_> {
                 bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
             }),
         };
-        let leaf = mesh.meets(self.opts.config.max_error_m) || tree.children(key).is_empty();
+        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
+        let leaf = stops || tree.children(key).is_empty();
         let max_error_m = mesh.max_error_m;
         let built = BuiltChunk { record: TileRecord { key, min, max, delta_m: delta }, figures, max_error_m, leaf };
         Ok((mesh, built))

@@ -220,3 +220,52 @@ fn scaling_runs_each_window_and_thread_count() {
     assert!(peak.parse::<u64>().unwrap() > 0, "peak RSS of the child build");
     assert!(String::from_utf8_lossy(&o.stdout).contains("µs/sample"));
 }
+
+/// Issue 5, section 3: flat ground ends shallow. Half a grid flat, half
+/// hills: the error-bounded tree stops over the flat half, the complete tree
+/// (every chunk to the deepest level) does not, and both verify.
+#[test]
+fn savings_compares_the_bounded_tree_with_a_complete_one() {
+    use crate::common::{verified, with_config, write_asc};
+    use terrachunk::config::Config;
+    let tmp = tempfile::tempdir().unwrap();
+    let hills = |i: usize, j: usize| {
+        if j <= 64 { 100.0 } else { 100.0 + 40.0 * ((i as f64 / 7.0).sin() * (j as f64 / 5.0).cos()) }
+    };
+    let dem = write_asc(tmp.path(), "half_flat.asc", 129, 129, hills);
+    let cfg = Config { max_error_m: 0.5, leaf_cells: Some(16), complete_tree: true, ..Config::default() };
+    let out = tmp.path().join("complete");
+    let complete = terrachunk::pipeline::build(&with_config(&dem, &out, cfg)).unwrap();
+    verified(&out);
+    let bench = tmp.path().join("savings");
+    let o = terrachunk(&[
+        "bench",
+        dem.to_str().unwrap(),
+        "--savings",
+        "--errors",
+        "0.5",
+        "--config",
+        write_config(tmp.path(), "leaf_cells = 16\n").to_str().unwrap(),
+        "-o",
+        bench.to_str().unwrap(),
+    ]);
+    let lines = csv_lines(&bench.join("savings.csv"));
+    assert_eq!(lines.len(), 2, "{}", lines.join("\n"));
+    let f: Vec<&str> = lines[1].split(',').collect();
+    let n = |k: usize| f[k].parse::<u64>().unwrap();
+    // dem, samples, valid, error, levels, complete levels, chunks, complete
+    // chunks, triangles, complete triangles, ...
+    assert_eq!((n(1), n(2)), (129 * 129, 129 * 129));
+    assert_eq!(n(4), n(5), "the hills reach the deepest level");
+    let complete_chunks: usize = complete.levels.iter().map(|l| l.chunks).sum();
+    assert_eq!(n(7) as usize, complete_chunks, "the same complete tree as the library builds");
+    assert!(n(6) * 4 < n(7) * 3, "the flat half ends shallow: {} of {} chunks", n(6), n(7));
+    assert!(n(8) < n(9), "fewer triangles: {} of {}", n(8), n(9));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("| half_flat.asc |"));
+}
+
+fn write_config(dir: &Path, text: &str) -> PathBuf {
+    let p = dir.join("settings.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}

@@ -16,10 +16,13 @@
 //! - [`scaling`]: time and peak memory for centred windows holding 1/16,
 //!   1/4, ... of a DEM's samples, per thread count (`scaling.csv`).
 //! - [`plot`]: triangles and time against max error, log–log (PNG, SVG).
+//! - [`savings`]: chunks, triangles and bytes of the error-bounded tree
+//!   against a complete tree to the same leaf error (`savings.csv`).
 
 pub mod grid;
 pub mod measure;
 pub mod plot;
+pub mod savings;
 pub mod table;
 
 use std::path::{Path, PathBuf};
