@@ -152,7 +152,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     };
 
     // Steps 1 and 3a: the parent's triangles, cut along the dividing lines.
-    let mut tin = initial_tin(grid, spec, mx, mz);
+    let (mut tin, origin) = initial_tin(grid, spec, mx, mz);
 
     // Steps 2 and 3b: borders, then dividing lines, refined in 1-D. Their
     // target takes its f32 margin from the whole grid's relief, not the
@@ -175,8 +175,21 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // Step 4: greedy insertion of interior samples.
     let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
     let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
+    // A parent triangle the cuts and lines left alone holds the same samples
+    // against the same plane: its last scan in the parent stands, unless its
+    // worst sample now lies on a dividing line (decided in 1-D instead).
+    let seeds = spec.parent.map(|p| &p.scans[..]).unwrap_or(&[]);
     for t in 0..tin.num_triangles() as u32 {
-        queue.push(&tin, &lines, t);
+        let seed = origin.get(t as usize).and_then(|&o| seeds.get(o as usize)).copied().flatten();
+        match seed {
+            Some(s)
+                if tin.version(t) == 0
+                    && s.worst.is_none_or(|(_, i, j)| !lines.row_is_line(i) && !lines.col_is_line(j)) =>
+            {
+                queue.record(t, 0, s);
+            }
+            _ => queue.push(&tin, &lines, t),
+        }
     }
     while let Some(c) = queue.heap.pop() {
         if lines.is_vertex(c.i, c.j) {
@@ -238,12 +251,15 @@ struct Soup {
     pts: Vec<V>,
     tris: Vec<[u32; 3]>,
     fixed: Vec<[bool; 3]>,
+    /// The parent triangle each one is, unchanged (`u32::MAX`: a piece of a
+    /// cut one, or the top level's).
+    origin: Vec<u32>,
 }
 
 /// The starting triangulation: the parent's triangles inside the footprint
 /// with every parent edge fixed (the top level: its four corners), cut along
 /// the dividing lines, whose pieces are fixed too.
-fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> Tin {
+fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> (Tin, Vec<u32>) {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let mut soup = match spec.parent {
         Some(p) => {
@@ -259,14 +275,15 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
                 }
             }
             // Stored clockwise in grid space (see `finish`): turn them back.
-            let tris: Vec<[u32; 3]> = p
+            let (tris, origin): (Vec<[u32; 3]>, Vec<u32>) = p
                 .triangles
                 .iter()
-                .map(|t| [remap[t[0] as usize], remap[t[2] as usize], remap[t[1] as usize]])
-                .filter(|t| !t.contains(&u32::MAX))
-                .collect();
+                .enumerate()
+                .map(|(k, t)| ([remap[t[0] as usize], remap[t[2] as usize], remap[t[1] as usize]], k as u32))
+                .filter(|(t, _)| !t.contains(&u32::MAX))
+                .unzip();
             let fixed = vec![[true; 3]; tris.len()];
-            Soup { pts, tris, fixed }
+            Soup { pts, tris, fixed, origin }
         }
         None => {
             let c = |j: u32, i: u32| {
@@ -277,6 +294,7 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
                 pts: vec![c(x0, z0), c(x1, z0), c(x1, z1), c(x0, z1)],
                 tris: vec![[0, 1, 2], [0, 2, 3]],
                 fixed: vec![[false; 3]; 2],
+                origin: vec![u32::MAX; 2],
             }
         }
     };
@@ -287,7 +305,7 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
     if let Some(mz) = mz {
         cut_along_line(&mut soup, grid, false, mz, nested);
     }
-    Tin::from_soup(soup.pts, &soup.tris, &soup.fixed)
+    (Tin::from_soup(soup.pts, &soup.tris, &soup.fixed), soup.origin)
 }
 
 /// Cuts every triangle the line `x = coord` (`vertical`) or `z = coord`
@@ -336,7 +354,8 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
     };
     let mut tris = Vec::with_capacity(soup.tris.len() + soup.tris.len() / 8);
     let mut fixed = Vec::with_capacity(tris.capacity());
-    for (&t, &f) in soup.tris.iter().zip(&soup.fixed) {
+    let mut origin = Vec::with_capacity(tris.capacity());
+    for ((&t, &f), &o) in soup.tris.iter().zip(&soup.fixed).zip(&soup.origin) {
         let s = t.map(|v| side(&soup.pts[v as usize]));
         let crosses = |k: usize| s[k] * s[(k + 1) % 3] < 0;
         if let Some(k) = (0..3).find(|&k| crosses(k) && crosses((k + 2) % 3)) {
@@ -347,6 +366,7 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
             let q = cut(&mut soup.pts, cc, a);
             tris.push([a, p, q]);
             fixed.push([fab, true, fca]);
+            origin.extend([u32::MAX; 3]);
             // The quadrilateral p, b, c, q: the Delaunay diagonal.
             let pos = |v: u32| {
                 let v = &soup.pts[v as usize];
@@ -366,15 +386,18 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
             let p = cut(&mut soup.pts, b, cc);
             tris.extend([[a, b, p], [a, p, cc]]);
             fixed.extend([[fab, fbc, true], [true, fbc, fca]]);
+            origin.extend([u32::MAX; 2]);
         } else {
             // Not crossed; an edge lying on the line becomes fixed.
             let on = |k: usize| s[k] == 0 && s[(k + 1) % 3] == 0;
             tris.push(t);
             fixed.push([f[0] || on(0), f[1] || on(1), f[2] || on(2)]);
+            origin.push(o);
         }
     }
     soup.tris = tris;
     soup.fixed = fixed;
+    soup.origin = origin;
 }
 
 /// Inserts interior sample (i, j), queued from triangle `t`. A sample within
@@ -568,10 +591,22 @@ impl Ord for Candidate {
 struct Scan {
     /// The triangle's version when scanned.
     version: u32,
+    /// What it found.
+    found: TriangleScan,
+}
+
+/// What scanning one triangle found, kept with a finished mesh
+/// ([`ChunkMesh::scans`]) so that a child starting from that triangle need
+/// not scan it again.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleScan {
     /// Largest error over its valid samples that are not vertices.
     max_err: f64,
     /// What it covers (None: zero area).
     coverage: Option<Coverage>,
+    /// Its worst sample step 4 may insert, whatever the target: (error, row,
+    /// column).
+    worst: Option<(f64, u32, u32)>,
 }
 
 /// Step 4's queue: each triangle's worst sample beyond the target.
@@ -678,13 +713,11 @@ impl Queue<'_> {
         let tri = tin.corners(t);
         let mut worst: Option<(f64, u32, u32)> = None;
         let mut max_err = 0.0;
-        let target = self.target;
         let coverage = scan_triangle(self.grid, self.clip, &tri, |i, j, err| {
             if err > max_err && !lines.is_vertex(i, j) {
                 max_err = err;
             }
-            if err > target
-                && worst.is_none_or(|w| err > w.0)
+            if worst.is_none_or(|w| err > w.0)
                 && !lines.row_is_line(i)
                 && !lines.col_is_line(j)
                 && !lines.is_vertex(i, j)
@@ -692,12 +725,20 @@ impl Queue<'_> {
                 worst = Some((err, i, j));
             }
         });
-        let version = tin.version(t);
+        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst });
+    }
+
+    /// Records what triangle `t` (as it is now) holds, and queues its worst
+    /// sample if that is beyond the target.
+    fn record(&mut self, t: u32, version: u32, found: TriangleScan) {
         if self.scans.len() <= t as usize {
-            self.scans.resize(t as usize + 1, Scan { version: u32::MAX, max_err: 0.0, coverage: None });
+            let none = TriangleScan { max_err: 0.0, coverage: None, worst: None };
+            self.scans.resize(t as usize + 1, Scan { version: u32::MAX, found: none });
         }
-        self.scans[t as usize] = Scan { version, max_err, coverage };
-        self.heap.set(t, worst.map(|(err, i, j)| Candidate { err, t, i, j }));
+        self.scans[t as usize] = Scan { version, found };
+        let target = self.target;
+        let c = found.worst.filter(|w| w.0 > target).map(|(err, i, j)| Candidate { err, t, i, j });
+        self.heap.set(t, c);
     }
 }
 
@@ -805,21 +846,27 @@ fn finish(grid: &Window, spec: &ChunkSpec, tin: &Tin, lines: &Lines, scans: &[Sc
     let mut kept = Vec::with_capacity(n);
     let mut max_err: f64 = 0.0;
     let mut parent_locator = None;
+    let mut seeds = Vec::with_capacity(n);
     for t in 0..n as u32 {
         let tri = tin.corners(t);
         // A triangle's last scan still holds unless a corner is a cut point:
         // then a sample within rounding outside it may since have become a
-        // vertex (of the neighbour), which is exact and must not count.
+        // vertex (of the neighbour), which is exact and must not count. Only
+        // a scan that holds is handed to the children.
         let any = match scans.get(t as usize) {
             Some(s) if s.version == tin.version(t) && tri.iter().all(|v| v.x.fract() == 0.0 && v.z.fract() == 0.0) => {
-                max_err = max_err.max(s.max_err);
-                s.coverage
+                max_err = max_err.max(s.found.max_err);
+                seeds.push(Some(s.found));
+                s.found.coverage
             }
-            _ => scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
-                if !lines.is_vertex(i, j) {
-                    max_err = max_err.max(e);
-                }
-            }),
+            _ => {
+                seeds.push(None);
+                scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
+                    if !lines.is_vertex(i, j) {
+                        max_err = max_err.max(e);
+                    }
+                })
+            }
         };
         // Counter-clockwise with z taken as up is clockwise in x-east,
         // z-south grid space: store them reversed.
@@ -853,5 +900,6 @@ fn finish(grid: &Window, spec: &ChunkSpec, tin: &Tin, lines: &Lines, scans: &[Sc
         kept,
         max_error_m: max_err,
         relief_m,
+        scans: seeds,
     }
 }

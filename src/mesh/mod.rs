@@ -45,6 +45,10 @@ pub struct ChunkMesh {
     pub max_error_m: f64,
     /// Largest minus smallest valid height in the footprint, metres.
     pub relief_m: f64,
+    /// Per triangle, what its last scan found (`None`: not known to hold):
+    /// a child that starts from an uncut triangle takes it instead of
+    /// scanning the triangle again.
+    pub scans: Vec<Option<decimate::TriangleScan>>,
 }
 
 impl ChunkMesh {
@@ -59,6 +63,7 @@ impl ChunkMesh {
             kept: Vec::new(),
             max_error_m: 0.0,
             relief_m: 0.0,
+            scans: Vec::new(),
         }
     }
 
