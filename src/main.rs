@@ -387,47 +387,37 @@ fn run_bench(a: BenchArgs) -> Result<(), bench::BenchError> {
     } else if let Some(manifest) = &a.peers {
         let rows = bench::import_peers(one_dem()?, cut, config, manifest, &a.out)?;
         println!("{} rows added to {}", rows.len(), a.out.join("bench.csv").display());
-    } else if a.savings {
-        let rows = bench::savings::savings(&bench::savings::SavingsOptions {
-            exe: exe()?,
-            dems: a.dem,
-            errors: a.errors.unwrap_or_else(|| vec![1.0]),
-            threads: a.threads.and_then(|t| t.first().copied()).unwrap_or(0),
-            out: a.out.clone(),
-            config: a.config,
-        })?;
-        print!("{}", bench::savings::markdown(&rows));
-        println!("{}", a.out.join("savings.csv").display());
-    } else if let Some(fractions) = a.scale {
-        let rows = bench::scaling(&bench::ScaleOptions {
-            exe: exe()?,
-            dems: a.dem,
-            fractions,
-            errors: a.errors.unwrap_or_else(|| vec![1.0]),
-            runs: a.runs,
-            warmup: a.warmup,
-            threads: a.threads.unwrap_or_else(|| vec![1, 2]),
-            out: a.out.clone(),
-            config: a.config,
-        })?;
-        print!("{}", bench::scaling_summary(&rows));
-        println!("{}", a.out.join("scaling.csv").display());
     } else {
-        let rows = bench::ladder(&bench::LadderOptions {
-            exe: exe()?,
-            dems: a.dem,
-            errors: a.errors.unwrap_or_else(|| vec![0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0]),
-            runs: a.runs,
-            warmup: a.warmup,
-            threads: a.threads.unwrap_or_else(|| vec![0]),
-            out: a.out.clone(),
-            config: a.config,
-            cut,
-            single_tin: a.single_tin,
-            append: a.append,
-        })?;
-        print_bench(&rows);
-        println!("{}", a.out.join("bench.csv").display());
+        let runs = |errors: Vec<f64>, threads: Vec<usize>| -> Result<bench::Runs, bench::BenchError> {
+            Ok(bench::Runs {
+                exe: exe()?,
+                dems: a.dem.clone(),
+                errors: a.errors.clone().unwrap_or(errors),
+                runs: a.runs,
+                warmup: a.warmup,
+                threads: a.threads.clone().unwrap_or(threads),
+                out: a.out.clone(),
+                config: a.config.clone(),
+            })
+        };
+        if a.savings {
+            let rows = bench::savings::savings(&runs(vec![1.0], vec![0])?)?;
+            print!("{}", bench::savings::markdown(&rows));
+            println!("{}", a.out.join("savings.csv").display());
+        } else if let Some(fractions) = a.scale.clone() {
+            let rows = bench::scaling(&bench::ScaleOptions { base: runs(vec![1.0], vec![1, 2])?, fractions })?;
+            print!("{}", bench::scaling_summary(&rows));
+            println!("{}", a.out.join("scaling.csv").display());
+        } else {
+            let rows = bench::ladder(&bench::LadderOptions {
+                base: runs(vec![0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0], vec![0])?,
+                cut,
+                single_tin: a.single_tin,
+                append: a.append,
+            })?;
+            print_bench(&rows);
+            println!("{}", a.out.join("bench.csv").display());
+        }
     }
     Ok(())
 }

@@ -363,14 +363,14 @@ fn median_stages(reports: &[ChildReport]) -> [f64; 7] {
     std::array::from_fn(|k| median(all.iter().map(|s| s[k]).collect()))
 }
 
-/// What [`ladder`] runs.
+/// What every bench mode that runs `terrachunk build` children is given.
 #[derive(Clone, Debug)]
-pub struct LadderOptions {
+pub struct Runs {
     /// The `terrachunk` binary that runs each build.
     pub exe: PathBuf,
-    /// DEMs, each benchmarked on its own.
+    /// DEMs, each benchmarked on its own (a folder of `.hgt` tiles is one).
     pub dems: Vec<PathBuf>,
-    /// The `max_error_m` ladder, metres.
+    /// `max_error_m` values, metres.
     pub errors: Vec<f64>,
     /// Timed runs per configuration (medians are taken over them).
     pub runs: usize,
@@ -378,10 +378,17 @@ pub struct LadderOptions {
     pub warmup: usize,
     /// Thread counts (0 = one per core).
     pub threads: Vec<usize>,
-    /// Where `bench.csv`, `bench.png` and `bench.svg` go.
+    /// Where the CSV files (and plots) go.
     pub out: PathBuf,
     /// Base settings for every build.
     pub config: Option<PathBuf>,
+}
+
+/// What [`ladder`] runs.
+#[derive(Clone, Debug)]
+pub struct LadderOptions {
+    /// DEMs, errors, runs, threads, output.
+    pub base: Runs,
     /// Which part of each DEM.
     pub cut: Cut,
     /// Also time one unconstrained greedy TIN over the grid.
@@ -393,12 +400,12 @@ pub struct LadderOptions {
 /// Runs the ladder (module comment), writes `bench.csv` and the plot, and
 /// returns the new rows.
 pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
-    check_errors(&o.errors)?;
-    std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
-    let work = scratch(&o.out)?;
-    let load = load_options(o.config.as_deref())?;
+    check_errors(&o.base.errors)?;
+    std::fs::create_dir_all(&o.base.out).map_err(|source| BenchError::Io { path: o.base.out.clone(), source })?;
+    let work = scratch(&o.base.out)?;
+    let load = load_options(o.base.config.as_deref())?;
     let mut rows = Vec::new();
-    for dem in &o.dems {
+    for dem in &o.base.dems {
         let p = prepare(dem, o.cut, &load, &work.0)?;
         let samples = p.hf.width * p.hf.height;
         let base = Row {
@@ -406,13 +413,14 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
             width: p.hf.width,
             height: p.hf.height,
             samples,
-            runs: o.runs.max(1),
+            runs: o.base.runs.max(1),
             ..Row::default()
         };
-        for &e in &o.errors {
+        for &e in &o.base.errors {
             let mut measured = None;
-            for &t in &o.threads {
-                let reports = timed_builds(&o.exe, &p, o.config.as_deref(), e, t, o.warmup, o.runs, &work.0)?;
+            for &t in &o.base.threads {
+                let reports =
+                    timed_builds(&o.base.exe, &p, o.base.config.as_deref(), e, t, o.base.warmup, o.base.runs, &work.0)?;
                 // Every run writes the same bytes (tested), so the last one's
                 // files stand for all of them.
                 let leaves = match measured {
@@ -445,7 +453,7 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
                 });
             }
             if o.single_tin {
-                let s = single_tin_timed(&p.hf, e, o.warmup, o.runs)?;
+                let s = single_tin_timed(&p.hf, e, o.base.warmup, o.base.runs)?;
                 eprintln!(
                     "terrachunk-single-tin {} at {e} m: {} triangles, measured max error {:.4} m, median {:.3} s",
                     p.label, s.triangles, s.errors.max_error_m, s.seconds
@@ -454,9 +462,9 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
             }
         }
     }
-    let csv = o.out.join("bench.csv");
+    let csv = o.base.out.join("bench.csv");
     table::write(&csv, &rows, o.append)?;
-    replot(&o.out)?;
+    replot(&o.base.out)?;
     Ok(rows)
 }
 
@@ -648,24 +656,10 @@ pub fn import_peers(
 /// What [`scaling`] runs.
 #[derive(Clone, Debug)]
 pub struct ScaleOptions {
-    /// The `terrachunk` binary.
-    pub exe: PathBuf,
-    /// DEMs.
-    pub dems: Vec<PathBuf>,
+    /// DEMs, errors, runs, threads, output (`scaling.csv`).
+    pub base: Runs,
     /// Each run keeps 1/f of the samples (a centred window); 1 = the whole file.
     pub fractions: Vec<u32>,
-    /// max_error_m values.
-    pub errors: Vec<f64>,
-    /// Timed runs.
-    pub runs: usize,
-    /// Untimed runs first.
-    pub warmup: usize,
-    /// Thread counts.
-    pub threads: Vec<usize>,
-    /// Where `scaling.csv` goes.
-    pub out: PathBuf,
-    /// Base settings.
-    pub config: Option<PathBuf>,
 }
 
 /// One configuration of a scaling run.
@@ -706,21 +700,30 @@ impl ScaleRow {
 
 /// Runs the scaling configurations and writes `out/scaling.csv`.
 pub fn scaling(o: &ScaleOptions) -> Result<Vec<ScaleRow>, BenchError> {
-    check_errors(&o.errors)?;
+    check_errors(&o.base.errors)?;
     if o.fractions.is_empty() || o.fractions.contains(&0) {
         return Err(BenchError::Usage(format!("--scale {:?}: fractions are whole numbers ≥ 1", o.fractions)));
     }
-    std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
-    let work = scratch(&o.out)?;
-    let load = load_options(o.config.as_deref())?;
+    std::fs::create_dir_all(&o.base.out).map_err(|source| BenchError::Io { path: o.base.out.clone(), source })?;
+    let work = scratch(&o.base.out)?;
+    let load = load_options(o.base.config.as_deref())?;
     let mut rows = Vec::new();
-    for dem in &o.dems {
+    for dem in &o.base.dems {
         for &f in &o.fractions {
             let cut = if f == 1 { Cut::Whole } else { Cut::Window(f) };
             let p = prepare(dem, cut, &load, &work.0)?;
-            for &e in &o.errors {
-                for &t in &o.threads {
-                    let reports = timed_builds(&o.exe, &p, o.config.as_deref(), e, t, o.warmup, o.runs, &work.0)?;
+            for &e in &o.base.errors {
+                for &t in &o.base.threads {
+                    let reports = timed_builds(
+                        &o.base.exe,
+                        &p,
+                        o.base.config.as_deref(),
+                        e,
+                        t,
+                        o.base.warmup,
+                        o.base.runs,
+                        &work.0,
+                    )?;
                     let last = reports.last().expect("at least one run");
                     let row = ScaleRow {
                         dem: p.label.clone(),
@@ -751,7 +754,7 @@ pub fn scaling(o: &ScaleOptions) -> Result<Vec<ScaleRow>, BenchError> {
             }
         }
     }
-    write_scaling(&o.out.join("scaling.csv"), &rows)?;
+    write_scaling(&o.base.out.join("scaling.csv"), &rows)?;
     Ok(rows)
 }
 

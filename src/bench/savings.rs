@@ -5,26 +5,9 @@
 //! triangles and bytes. Chunks over nodata alone are absent from both.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use super::{BenchError, ChildReport, Cut, build_once, check_errors, load_options, prepare, scratch};
-
-/// What [`savings`] runs.
-#[derive(Clone, Debug)]
-pub struct SavingsOptions {
-    /// The `terrachunk` binary.
-    pub exe: PathBuf,
-    /// DEMs (a folder of `.hgt` tiles is one mosaic).
-    pub dems: Vec<PathBuf>,
-    /// max_error_m values.
-    pub errors: Vec<f64>,
-    /// Threads per build (0 = one per core).
-    pub threads: usize,
-    /// Where `savings.csv` goes.
-    pub out: PathBuf,
-    /// Base settings.
-    pub config: Option<PathBuf>,
-}
+use super::{BenchError, ChildReport, Cut, Runs, build_once, check_errors, load_options, prepare, scratch};
 
 /// One DEM at one error, both trees.
 #[derive(Clone, Debug, PartialEq)]
@@ -89,7 +72,10 @@ fn saved(ours: f64, complete: f64) -> f64 {
 }
 
 /// Builds every DEM both ways at every error; writes `out/savings.csv`.
-pub fn savings(o: &SavingsOptions) -> Result<Vec<SavingsRow>, BenchError> {
+/// One build of each tree per DEM and error, with the first thread count:
+/// the counts compared do not depend on timing, so `runs` and `warmup` are
+/// not used.
+pub fn savings(o: &Runs) -> Result<Vec<SavingsRow>, BenchError> {
     check_errors(&o.errors)?;
     std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
     let work = scratch(&o.out)?;
@@ -100,8 +86,9 @@ pub fn savings(o: &SavingsOptions) -> Result<Vec<SavingsRow>, BenchError> {
         let mut complete = prepare(dem, Cut::Whole, &load, &work.0)?;
         complete.build_args.push("--complete-tree".into());
         for &e in &o.errors {
-            let b = build_once(&o.exe, &p, o.config.as_deref(), e, o.threads, &work.0)?;
-            let c = build_once(&o.exe, &complete, o.config.as_deref(), e, o.threads, &work.0)?;
+            let threads = o.threads.first().copied().unwrap_or(0);
+            let b = build_once(&o.exe, &p, o.config.as_deref(), e, threads, &work.0)?;
+            let c = build_once(&o.exe, &complete, o.config.as_deref(), e, threads, &work.0)?;
             let row = SavingsRow {
                 dem: p.label.clone(),
                 samples: p.hf.width * p.hf.height,
