@@ -43,16 +43,28 @@ const PROJ_LINEAR_UNITS: u16 = 3076;
 /// EPSG codes that name spherical Web Mercator.
 const WEB_MERCATOR: [u32; 5] = [3857, 3785, 900_913, 102_100, 102_113];
 
-/// Read a GeoTIFF DEM.
-pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
+/// A TIFF opened for reading, with its file size and dimensions.
+struct Opened {
+    dec: Decoder<BufReader<File>>,
+    file_len: u64,
+    width: usize,
+    height: usize,
+}
+
+/// Opens `path` with tag limits sized from the file and reads its dimensions.
+fn open(path: &Path) -> Result<Opened, DemError> {
     let file = File::open(path).map_err(|e| io_error(path, e))?;
     let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
     let mut dec =
         Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
-    let err = |e: TiffError| tiff_error(path, e);
+    let (w, h) = dec.dimensions().map_err(|e| tiff_error(path, e))?;
+    Ok(Opened { dec, file_len, width: w as usize, height: h as usize })
+}
 
-    let (w, h) = dec.dimensions().map_err(err)?;
-    let (width, height) = (w as usize, h as usize);
+/// Read a GeoTIFF DEM.
+pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
+    let Opened { mut dec, file_len, width, height } = open(path)?;
+    let err = |e: TiffError| tiff_error(path, e);
     let n = sample_count(path, width, height)?;
     check_layout(path, &mut dec)?;
     check_chunks_present(path, &mut dec, file_len, width, height)?;
@@ -507,13 +519,8 @@ const MAX_COLOUR_PIXELS: usize = 1 << 30;
 /// Reads an 8-bit gray, RGB or RGBA TIFF (chunky, in strips or tiles, any
 /// compression the DEM reader takes) with its georeference.
 pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
-    let file = File::open(path).map_err(|e| io_error(path, e))?;
-    let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
-    let mut dec =
-        Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
+    let Opened { mut dec, file_len, width, height } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
-    let (w, h) = dec.dimensions().map_err(err)?;
-    let (width, height) = (w as usize, h as usize);
     if width.checked_mul(height).is_none_or(|n| n > MAX_COLOUR_PIXELS) {
         return Err(unsupported(path, format!("{width} × {height} pixels is larger than terrachunk reads")));
     }
