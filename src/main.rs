@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
-use terrachunk::config::{Config, TextureFormat};
+use terrachunk::config::{Compress, Config, TextureFormat};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::{read_chunk, verify};
@@ -64,6 +64,11 @@ enum Command {
         /// Also write a tangent-space normal map from the full-resolution DEM.
         #[arg(long)]
         normal_map: bool,
+        /// How vertex data is stored: f32 (`none`, opens everywhere),
+        /// KHR_mesh_quantization (`quantize`) or that plus
+        /// EXT_meshopt_compression (`meshopt`) [default: none].
+        #[arg(long, value_enum)]
+        compress: Option<CompressArg>,
         /// Replace an existing output directory.
         #[arg(long)]
         force: bool,
@@ -144,6 +149,13 @@ struct BenchArgs {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum CompressArg {
+    None,
+    Quantize,
+    Meshopt,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum FormatArg {
     Png,
     Jpeg,
@@ -186,6 +198,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             jpeg_quality,
             max_texture_px,
             normal_map,
+            compress,
             force,
             report,
         } => {
@@ -227,6 +240,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 cfg.max_texture_px = v;
             }
             cfg.normal_map |= normal_map;
+            if let Some(c) = compress {
+                cfg.compress = match c {
+                    CompressArg::None => Compress::None,
+                    CompressArg::Quantize => Compress::Quantize,
+                    CompressArg::Meshopt => Compress::Meshopt,
+                };
+            }
             let opts = BuildOptions {
                 inputs: dem,
                 out: out.clone(),
