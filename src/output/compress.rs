@@ -495,10 +495,14 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                 let data = slice(num(&m["byteOffset"]).unwrap_or(0), num(&m["byteLength"]).unwrap_or(0))?;
                 let bad = |e: meshopt::Error| format!("bufferView {v}: meshopt cannot decode it: {e:?}");
                 match (m["mode"].as_str(), stride) {
-                    (Some("ATTRIBUTES"), 4) => decode_vertices::<4>(data, count).map_err(bad)?,
-                    (Some("ATTRIBUTES"), 8) => decode_vertices::<8>(data, count).map_err(bad)?,
-                    (Some("ATTRIBUTES"), 12) => decode_vertices::<12>(data, count).map_err(bad)?,
-                    (Some("ATTRIBUTES"), 16) => decode_vertices::<16>(data, count).map_err(bad)?,
+                    (Some("ATTRIBUTES"), 4) => meshopt::decode_vertex_buffer::<[u8; 4]>(data, count).map_err(bad)?.concat(),
+                    (Some("ATTRIBUTES"), 8) => meshopt::decode_vertex_buffer::<[u8; 8]>(data, count).map_err(bad)?.concat(),
+                    (Some("ATTRIBUTES"), 12) => {
+                        meshopt::decode_vertex_buffer::<[u8; 12]>(data, count).map_err(bad)?.concat()
+                    }
+                    (Some("ATTRIBUTES"), 16) => {
+                        meshopt::decode_vertex_buffer::<[u8; 16]>(data, count).map_err(bad)?.concat()
+                    }
                     (Some("TRIANGLES"), 2) => meshopt::decode_index_buffer::<u16>(data, count)
                         .map_err(bad)?
                         .into_iter()
@@ -520,10 +524,6 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
         cache[v] = Some(bytes);
     }
     Ok(cache[v].as_deref().expect("filled above"))
-}
-
-fn decode_vertices<const N: usize>(data: &[u8], count: usize) -> Result<Vec<u8>, meshopt::Error> {
-    Ok(meshopt::decode_vertex_buffer::<[u8; N]>(data, count)?.concat())
 }
 
 /// An accessor's values as f64 (normalized integers mapped to [−1, 1] or
