@@ -69,7 +69,8 @@ fn quantized_and_meshopt_files_are_smaller_and_meshopt_decodes_to_quantize() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = fixture("mount_st_helens_30m.tif");
     let mut bytes = BTreeMap::new();
-    for (name, compress) in [("none", Compress::None), ("quantize", Compress::Quantize), ("meshopt", Compress::Meshopt)] {
+    for (name, compress) in [("none", Compress::None), ("quantize", Compress::Quantize), ("meshopt", Compress::Meshopt)]
+    {
         build_mode(&dem, &tmp.path().join(name), compress, TextureSource::None, 0);
         bytes.insert(name, glb_bytes(&tmp.path().join(name)));
     }
@@ -96,11 +97,13 @@ fn quantized_surface(bytes: &[u8]) -> Vec<[f64; 3]> {
     let node = &j["nodes"][0];
     let t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-    let prim = j["meshes"][0]["primitives"].as_array().unwrap().iter().find(|p| p["extras"]["role"] == "surface").unwrap();
+    let prim =
+        j["meshes"][0]["primitives"].as_array().unwrap().iter().find(|p| p["extras"]["role"] == "surface").unwrap();
     let acc = &j["accessors"][prim["attributes"]["POSITION"].as_u64().unwrap() as usize];
     assert_eq!(acc["componentType"], 5123, "u16 positions");
     let view = &j["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
-    let (offset, stride) = (view["byteOffset"].as_u64().unwrap() as usize, view["byteStride"].as_u64().unwrap() as usize);
+    let (offset, stride) =
+        (view["byteOffset"].as_u64().unwrap() as usize, view["byteStride"].as_u64().unwrap() as usize);
     (0..acc["count"].as_u64().unwrap() as usize)
         .map(|i| {
             let b = &bin[offset + i * stride..];
@@ -119,7 +122,8 @@ fn border_vertices_agree_across_neighbours_after_quantisation() {
         .into_iter()
         .filter(|(p, _)| p.extension().is_some_and(|e| e == "glb"))
         .map(|(p, b)| {
-            let k: Vec<u32> = p.with_extension("").iter().skip(1).map(|c| c.to_str().unwrap().parse().unwrap()).collect();
+            let k: Vec<u32> =
+                p.with_extension("").iter().skip(1).map(|c| c.to_str().unwrap().parse().unwrap()).collect();
             ((k[0], k[1], k[2]), quantized_surface(&b))
         })
         .collect();
@@ -138,8 +142,11 @@ fn border_vertices_agree_across_neighbours_after_quantisation() {
             let (axis, along) = if east { (0, 2) } else { (2, 0) };
             let line = footprints[&(l, x, y)][usize::from(!east)] as f64 * spacing[axis / 2];
             let on = |v: &Vec<[f64; 3]>| {
-                let mut s: Vec<[f64; 2]> =
-                    v.iter().filter(|p| (p[axis] - line).abs() < 1e-9 * line.max(1.0)).map(|p| [p[along], p[1]]).collect();
+                let mut s: Vec<[f64; 2]> = v
+                    .iter()
+                    .filter(|p| (p[axis] - line).abs() < 1e-9 * line.max(1.0))
+                    .map(|p| [p[along], p[1]])
+                    .collect();
                 s.sort_by(|a, b| a[0].total_cmp(&b[0]));
                 s
             };
@@ -181,7 +188,16 @@ fn inspect_reads_meshopt_chunks_and_the_flag_reaches_the_build() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("m");
     let dem = fixture("dfw_texas_srtm3.tif");
-    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--compress", "meshopt", "--texture", "none"]);
+    let o = cli(&[
+        "build",
+        dem.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--compress",
+        "meshopt",
+        "--texture",
+        "none",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let glb = out.join("tiles/0/0/0.glb");
     assert!(glb_json(&std::fs::read(&glb).unwrap())["extensionsUsed"].to_string().contains("EXT_meshopt_compression"));
@@ -198,6 +214,7 @@ fn a_relief_too_tall_for_u16_heights_is_refused() {
     // 100 km of relief against 5 cm: a u16 height would need 1.5 m steps.
     let dem = write_asc(tmp.path(), "tall.asc", 9, 9, |i, j| if i == 4 && j == 4 { 100_000.0 } else { 0.0 });
     let out = tmp.path().join("out");
-    let args = ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--max-error", "0.05", "--compress", "quantize"];
+    let args =
+        ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--max-error", "0.05", "--compress", "quantize"];
     assert_bad_input(&args, &out, "needs a height step");
 }

@@ -275,7 +275,8 @@ pub fn push_positions(sink: &mut Sink, frame: &Frame, positions: &[[f64; 3]]) ->
     let q: Vec<[u16; 3]> = positions.iter().map(|p| frame.position(p)).collect();
     let bytes: Vec<u8> = q.iter().flat_map(|v| [v[0], v[1], v[2], 0].into_iter().flat_map(u16::to_le_bytes)).collect();
     let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
-    let (min, max): (Vec<u64>, Vec<u64>) = (min.iter().map(|&v| v as u64).collect(), max.iter().map(|&v| v as u64).collect());
+    let (min, max): (Vec<u64>, Vec<u64>) =
+        (min.iter().map(|&v| v as u64).collect(), max.iter().map(|&v| v as u64).collect());
     push_attribute(sink, &bytes, 8, json!({"componentType": 5123, "type": "VEC3", "min": min, "max": max}))
 }
 
@@ -285,13 +286,24 @@ pub fn push_deltas(sink: &mut Sink, frame: &Frame, positions: &[[f64; 3]], morph
     let d: Vec<i64> = positions.iter().zip(morph_dy).map(|(p, dy)| frame.delta_steps(p[1], p[1] + dy)).collect();
     let (lo, hi) = (d.iter().copied().min().unwrap_or(0), d.iter().copied().max().unwrap_or(0));
     if lo >= -32767 && hi <= 32767 {
-        let bytes: Vec<u8> = d.iter().flat_map(|&v| [0, v as i16, 0, 0].into_iter().flat_map(i16::to_le_bytes)).collect();
-        push_attribute(sink, &bytes, 8, json!({"componentType": 5122, "type": "VEC3", "min": [0, lo, 0], "max": [0, hi, 0]}))
+        let bytes: Vec<u8> =
+            d.iter().flat_map(|&v| [0, v as i16, 0, 0].into_iter().flat_map(i16::to_le_bytes)).collect();
+        push_attribute(
+            sink,
+            &bytes,
+            8,
+            json!({"componentType": 5122, "type": "VEC3", "min": [0, lo, 0], "max": [0, hi, 0]}),
+        )
     } else {
         let bytes: Vec<u8> =
             d.iter().flat_map(|&v| [0.0, v as f32, 0.0].into_iter().flat_map(f32::to_le_bytes)).collect();
         let (lo, hi) = (lo as f32, hi as f32);
-        push_attribute(sink, &bytes, 12, json!({"componentType": 5126, "type": "VEC3", "min": [0.0, lo, 0.0], "max": [0.0, hi, 0.0]}))
+        push_attribute(
+            sink,
+            &bytes,
+            12,
+            json!({"componentType": 5126, "type": "VEC3", "min": [0.0, lo, 0.0], "max": [0.0, hi, 0.0]}),
+        )
     }
 }
 
@@ -302,7 +314,8 @@ fn snorm8(v: f32) -> i8 {
 
 /// NORMAL: i8 normalized, 4 bytes per vertex.
 pub fn push_normals(sink: &mut Sink, normals: &[[f32; 3]]) -> usize {
-    let bytes: Vec<u8> = normals.iter().flat_map(|n| [snorm8(n[0]), snorm8(n[1]), snorm8(n[2]), 0].map(|c| c as u8)).collect();
+    let bytes: Vec<u8> =
+        normals.iter().flat_map(|n| [snorm8(n[0]), snorm8(n[1]), snorm8(n[2]), 0].map(|c| c as u8)).collect();
     push_attribute(sink, &bytes, 4, json!({"componentType": 5120, "normalized": true, "type": "VEC3"}))
 }
 
@@ -316,7 +329,9 @@ pub fn push_tangents(sink: &mut Sink, tangents: &[[f32; 4]]) -> usize {
 pub fn push_uv(sink: &mut Sink, uv: &[[f32; 2]]) -> usize {
     let bytes: Vec<u8> = uv
         .iter()
-        .flat_map(|t| t.map(|c| (f64::from(c).clamp(0.0, 1.0) * U16_STEPS).round() as u16).into_iter().flat_map(u16::to_le_bytes))
+        .flat_map(|t| {
+            t.map(|c| (f64::from(c).clamp(0.0, 1.0) * U16_STEPS).round() as u16).into_iter().flat_map(u16::to_le_bytes)
+        })
         .collect();
     push_attribute(sink, &bytes, 4, json!({"componentType": 5123, "normalized": true, "type": "VEC2"}))
 }
@@ -343,7 +358,8 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
     let mut packed = Vec::new();
     for s in &sink.streams {
         let view = &mut sink.views[s.view];
-        let (offset, length) = (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
+        let (offset, length) =
+            (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
         let raw = &sink.bin[offset..offset + length];
         let encoded = if s.triangles {
             let indices: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
@@ -411,7 +427,9 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
     // Which accessors are positions (scaled by the node) and which indices.
     let mut positions = std::collections::BTreeSet::new();
     let mut indices = std::collections::BTreeSet::new();
-    for prim in json["meshes"].as_array().into_iter().flatten().flat_map(|m| m["primitives"].as_array().into_iter().flatten()) {
+    for prim in
+        json["meshes"].as_array().into_iter().flatten().flat_map(|m| m["primitives"].as_array().into_iter().flatten())
+    {
         positions.extend(prim["attributes"]["POSITION"].as_u64());
         for t in prim["targets"].as_array().into_iter().flatten() {
             positions.extend(t["POSITION"].as_u64());
@@ -431,16 +449,20 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
                 out.bin.extend_from_slice(&(*v as u32).to_le_bytes());
             }
             out.views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": values.len() * 4, "target": 34963}));
-            out.accessors.push(json!({"bufferView": out.views.len() - 1, "componentType": 5125, "count": count, "type": "SCALAR"}));
+            out.accessors.push(
+                json!({"bufferView": out.views.len() - 1, "componentType": 5125, "count": count, "type": "SCALAR"}),
+            );
             continue;
         }
         let scaled = positions.contains(&(a as u64)) && n == 3;
-        let f: Vec<f32> = values.iter().enumerate().map(|(i, v)| (if scaled { v * scale[i % 3] } else { *v }) as f32).collect();
+        let f: Vec<f32> =
+            values.iter().enumerate().map(|(i, v)| (if scaled { v * scale[i % 3] } else { *v }) as f32).collect();
         for v in &f {
             out.bin.extend_from_slice(&v.to_le_bytes());
         }
         out.views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": f.len() * 4, "target": 34962}));
-        let mut accessor = json!({"bufferView": out.views.len() - 1, "componentType": 5126, "count": count, "type": acc["type"]});
+        let mut accessor =
+            json!({"bufferView": out.views.len() - 1, "componentType": 5126, "count": count, "type": acc["type"]});
         if scaled {
             let (lo, hi) = bounds(f.chunks_exact(3).map(|c| [0, 1, 2].map(|k| f64::from(c[k]))));
             accessor["min"] = lo.iter().map(|&v| v as f32).collect::<Vec<_>>().into();
@@ -495,8 +517,12 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                 let data = slice(num(&m["byteOffset"]).unwrap_or(0), num(&m["byteLength"]).unwrap_or(0))?;
                 let bad = |e: meshopt::Error| format!("bufferView {v}: meshopt cannot decode it: {e:?}");
                 match (m["mode"].as_str(), stride) {
-                    (Some("ATTRIBUTES"), 4) => meshopt::decode_vertex_buffer::<[u8; 4]>(data, count).map_err(bad)?.concat(),
-                    (Some("ATTRIBUTES"), 8) => meshopt::decode_vertex_buffer::<[u8; 8]>(data, count).map_err(bad)?.concat(),
+                    (Some("ATTRIBUTES"), 4) => {
+                        meshopt::decode_vertex_buffer::<[u8; 4]>(data, count).map_err(bad)?.concat()
+                    }
+                    (Some("ATTRIBUTES"), 8) => {
+                        meshopt::decode_vertex_buffer::<[u8; 8]>(data, count).map_err(bad)?.concat()
+                    }
                     (Some("ATTRIBUTES"), 12) => {
                         meshopt::decode_vertex_buffer::<[u8; 12]>(data, count).map_err(bad)?.concat()
                     }
@@ -513,7 +539,9 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                         .into_iter()
                         .flat_map(u32::to_le_bytes)
                         .collect(),
-                    (mode, stride) => return Err(format!("bufferView {v}: meshopt mode {mode:?} with stride {stride}")),
+                    (mode, stride) => {
+                        return Err(format!("bufferView {v}: meshopt mode {mode:?} with stride {stride}"));
+                    }
                 }
             }
             None if num(&view["buffer"]) == Some(0) => {
@@ -528,7 +556,12 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
 
 /// An accessor's values as f64 (normalized integers mapped to [−1, 1] or
 /// [0, 1]), and the number of components per element.
-fn read_accessor(json: &Value, acc: &Value, bin: &[u8], cache: &mut [Option<Vec<u8>>]) -> Result<(Vec<f64>, usize), String> {
+fn read_accessor(
+    json: &Value,
+    acc: &Value,
+    bin: &[u8],
+    cache: &mut [Option<Vec<u8>>],
+) -> Result<(Vec<f64>, usize), String> {
     let n = match acc["type"].as_str() {
         Some("SCALAR") => 1,
         Some("VEC2") => 2,

@@ -21,7 +21,7 @@ use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
-use crate::output::compress::{self, Frame, QuantizeError, Quantization, Sink};
+use crate::output::compress::{self, Frame, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
