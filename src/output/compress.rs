@@ -336,11 +336,15 @@ pub fn push_uv(sink: &mut Sink, uv: &[[f32; 2]]) -> usize {
     push_attribute(sink, &bytes, 4, json!({"componentType": 5123, "normalized": true, "type": "VEC2"}))
 }
 
-/// Triangle indices, u16.
+/// Triangle indices, u16. meshoptimizer's index codec keeps the triangles'
+/// order but may rotate each one's corners; both modes write the rotation
+/// it decodes to, so that `meshopt` decodes to exactly what `quantize` writes.
 pub fn push_indices(sink: &mut Sink, indices: &[u32], vertices: usize) -> usize {
+    let encoded = meshopt::encode_index_buffer(indices, vertices).expect("a triangle list");
+    let indices: Vec<u32> = meshopt::decode_index_buffer(&encoded, indices.len()).expect("just encoded");
     align4(&mut sink.bin);
     let offset = sink.bin.len();
-    for &i in indices {
+    for &i in &indices {
         sink.bin.extend_from_slice(&(i as u16).to_le_bytes());
     }
     sink.views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len() * 2, "target": 34963}));
