@@ -380,8 +380,7 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
         packed.extend_from_slice(&encoded);
     }
     align4(&mut packed);
-    let fallback = std::mem::replace(&mut sink.bin, packed).len();
-    fallback
+    std::mem::replace(&mut sink.bin, packed).len()
 }
 
 /// meshoptimizer's vertex codec, version 0 (the one EXT_meshopt_compression names).
