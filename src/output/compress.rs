@@ -33,12 +33,13 @@
 //! **Morph targets** are the parent's height rounded to the same grid minus
 //! the vertex's rounded height, in whole steps: i16 (scaled by the node like
 //! POSITION), or f32 holding the same whole numbers where a delta exceeds
-//! 32 767 steps. Normals are i8 normalized, texture coordinates u16
-//! normalized, the normal map's tangent i8 normalized.
+//! 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
+//! texture coordinates u16 normalized, the normal map's tangent i8 normalized.
 //!
-//! **meshopt** encodes every vertex stream (codec version 0, no filter, so
-//! it decodes to exactly the bytes `quantize` writes) and every index stream
-//! (triangle codec). EXT_meshopt_compression is *required* and the fallback
+//! **meshopt** encodes every vertex stream (codec version 0; normals through
+//! the 8-bit OCTAHEDRAL filter, whose decoded values `quantize` writes too)
+//! and every index stream (triangle codec, whose corner rotation `quantize`
+//! writes too), so it decodes to exactly the bytes `quantize` writes. EXT_meshopt_compression is *required* and the fallback
 //! buffer holds no data (`fallback: true`): the point of the mode is size,
 //! and an uncompressed fallback would make the file larger than `quantize`;
 //! a reader without the decoder should use `quantize` or `none` output.
@@ -231,6 +232,9 @@ pub struct Stream {
     triangles: bool,
     /// Vertices the indices refer to (index streams only).
     vertices: usize,
+    /// What `meshopt` encodes instead, for the OCTAHEDRAL filter to decode
+    /// into the bytes written.
+    filtered: Option<Vec<u8>>,
 }
 
 fn align4(bin: &mut Vec<u8>) {
@@ -249,7 +253,7 @@ fn push_attribute(sink: &mut Sink, bytes: &[u8], stride: usize, accessor: Value)
     }));
     sink.bin.extend_from_slice(bytes);
     let view = sink.views.len() - 1;
-    sink.streams.push(Stream { view, count, stride, triangles: false, vertices: count });
+    sink.streams.push(Stream { view, count, stride, triangles: false, vertices: count, filtered: None });
     let mut accessor = accessor;
     accessor["bufferView"] = view.into();
     accessor["count"] = count.into();
@@ -312,11 +316,20 @@ fn snorm8(v: f32) -> i8 {
     (v.clamp(-1.0, 1.0) * 127.0).round() as i8
 }
 
-/// NORMAL: i8 normalized, 4 bytes per vertex.
+/// NORMAL: i8 normalized, 4 bytes per vertex, as meshoptimizer's 8-bit
+/// octahedral filter decodes them: `meshopt` stores the two octahedral
+/// coordinates (filter OCTAHEDRAL, which the vertex codec packs tighter than
+/// three components), `quantize` what they decode to, so both read alike.
 pub fn push_normals(sink: &mut Sink, normals: &[[f32; 3]]) -> usize {
-    let bytes: Vec<u8> =
-        normals.iter().flat_map(|n| [snorm8(n[0]), snorm8(n[1]), snorm8(n[2]), 0].map(|c| c as u8)).collect();
-    push_attribute(sink, &bytes, 4, json!({"componentType": 5120, "normalized": true, "type": "VEC3"}))
+    let unit: Vec<[f32; 4]> = normals.iter().map(|n| [n[0], n[1], n[2], 0.0]).collect();
+    let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&unit, 8);
+    let mut decoded = oct.clone();
+    meshopt::decode_filter_oct(&mut decoded);
+    let bytes: Vec<u8> = decoded.iter().flat_map(|v| v.map(|c| c as u8)).collect();
+    let accessor = push_attribute(sink, &bytes, 4, json!({"componentType": 5120, "normalized": true, "type": "VEC3"}));
+    let stream = sink.streams.last_mut().expect("pushed above");
+    stream.filtered = Some(oct.iter().flat_map(|v| v.map(|c| c as u8)).collect());
+    accessor
 }
 
 /// TANGENT: i8 normalized, 4 bytes per vertex.
@@ -349,7 +362,7 @@ pub fn push_indices(sink: &mut Sink, indices: &[u32], vertices: usize) -> usize 
     }
     sink.views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len() * 2, "target": 34963}));
     let view = sink.views.len() - 1;
-    sink.streams.push(Stream { view, count: indices.len(), stride: 2, triangles: true, vertices });
+    sink.streams.push(Stream { view, count: indices.len(), stride: 2, triangles: true, vertices, filtered: None });
     sink.accessors.push(json!({"bufferView": view, "componentType": 5123, "count": indices.len(), "type": "SCALAR"}));
     sink.accessors.len() - 1
 }
@@ -364,7 +377,7 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
         let view = &mut sink.views[s.view];
         let (offset, length) =
             (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
-        let raw = &sink.bin[offset..offset + length];
+        let raw = s.filtered.as_deref().unwrap_or(&sink.bin[offset..offset + length]);
         let encoded = if s.triangles {
             let indices: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
             meshopt::encode_index_buffer(&indices, s.vertices).expect("a triangle list")
@@ -373,10 +386,14 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
         };
         align4(&mut packed);
         view["buffer"] = 1.into();
-        view["extensions"] = json!({"EXT_meshopt_compression": {
+        let mut ext = json!({
             "buffer": 0, "byteOffset": packed.len(), "byteLength": encoded.len(), "byteStride": s.stride,
             "count": s.count, "mode": if s.triangles { "TRIANGLES" } else { "ATTRIBUTES" },
-        }});
+        });
+        if s.filtered.is_some() {
+            ext["filter"] = "OCTAHEDRAL".into();
+        }
+        view["extensions"] = json!({"EXT_meshopt_compression": ext});
         packed.extend_from_slice(&encoded);
     }
     align4(&mut packed);
@@ -513,13 +530,13 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                     return Err(format!("bufferView {v}: compressed data outside the binary chunk"));
                 }
                 let filter = m["filter"].as_str().unwrap_or("NONE");
-                if filter != "NONE" {
+                if filter != "NONE" && filter != "OCTAHEDRAL" {
                     return Err(format!("bufferView {v}: meshopt filter {filter} is not supported"));
                 }
                 let (count, stride) = (num(&m["count"]).unwrap_or(0), num(&m["byteStride"]).unwrap_or(0));
                 let data = slice(num(&m["byteOffset"]).unwrap_or(0), num(&m["byteLength"]).unwrap_or(0))?;
                 let bad = |e: meshopt::Error| format!("bufferView {v}: meshopt cannot decode it: {e:?}");
-                match (m["mode"].as_str(), stride) {
+                let decoded: Vec<u8> = match (m["mode"].as_str(), stride) {
                     (Some("ATTRIBUTES"), 4) => {
                         meshopt::decode_vertex_buffer::<[u8; 4]>(data, count).map_err(bad)?.concat()
                     }
@@ -545,6 +562,16 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                     (mode, stride) => {
                         return Err(format!("bufferView {v}: meshopt mode {mode:?} with stride {stride}"));
                     }
+                };
+                match (filter, stride) {
+                    ("OCTAHEDRAL", 4) => {
+                        let mut oct: Vec<[i8; 4]> =
+                            decoded.chunks_exact(4).map(|c| [0, 1, 2, 3].map(|k| c[k] as i8)).collect();
+                        meshopt::decode_filter_oct(&mut oct);
+                        oct.iter().flat_map(|v| v.map(|c| c as u8)).collect()
+                    }
+                    ("OCTAHEDRAL", _) => return Err(format!("bufferView {v}: OCTAHEDRAL filter with stride {stride}")),
+                    _ => decoded,
                 }
             }
             None if num(&view["buffer"]) == Some(0) => {
