@@ -65,6 +65,18 @@ fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
 }
 
 #[test]
+fn meshopt_over_nodata_and_below_sea_level_verifies_and_validates() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, max_error_m) in [("west_bijou_gully_3m.asc", 0.25), ("salish_sea_topobathy_f32.tif", 5.0)] {
+        let out = tmp.path().join(name);
+        let config = Config { max_error_m, compress: Compress::Meshopt, ..Config::default() };
+        build(&with_config(&fixture(name), &out, config)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        verified(&out);
+        khronos_validate(&out);
+    }
+}
+
+#[test]
 fn quantized_and_meshopt_files_are_smaller_and_meshopt_decodes_to_quantize() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = fixture("mount_st_helens_30m.tif");
