@@ -28,7 +28,10 @@
 //! **The δ budget.** Rounding a vertex's height moves the surface at any
 //! point by at most step/2, so each level is meshed to δ(L) − step/2
 //! ([`Quantization::mesh_delta`]) and the written, dequantized chunk is
-//! still within δ(L) of every sample; `verify` re-measures it from the files.
+//! still within δ(L) of every sample. Cut points also move sideways by up to
+//! half a horizontal step (1/512 of a cell in a 250-cell chunk); the
+//! mesher's own margin (it meshes to 0.98·δ) is what covers that, and
+//! `verify` re-measures the dequantized files against δ with no allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
 //! the vertex's rounded height, in whole steps: i16 (scaled by the node like
@@ -39,10 +42,11 @@
 //! **meshopt** encodes every vertex stream (codec version 0; normals through
 //! the 8-bit OCTAHEDRAL filter, whose decoded values `quantize` writes too)
 //! and every index stream (triangle codec, whose corner rotation `quantize`
-//! writes too), so it decodes to exactly the bytes `quantize` writes. EXT_meshopt_compression is *required* and the fallback
-//! buffer holds no data (`fallback: true`): the point of the mode is size,
-//! and an uncompressed fallback would make the file larger than `quantize`;
-//! a reader without the decoder should use `quantize` or `none` output.
+//! writes too), so it decodes to exactly the bytes `quantize` writes.
+//! EXT_meshopt_compression is *required* and the fallback buffer holds no
+//! data (`fallback: true`): the point of the mode is size, and an
+//! uncompressed fallback would make the file larger than `quantize`; a
+//! reader without the decoder should use `quantize` or `none` output.
 
 use serde_json::{Value, json};
 
