@@ -85,12 +85,18 @@ fn stages(c: &mut Criterion) {
     g.finish();
 
     let mut g = c.benchmark_group("glb_encode");
-    let ctx = GlbContext { spacing_m: hf.spacing_m, generator: "bench", vertex_cache: VertexCache::Fast };
+    let ctx = GlbContext {
+        spacing_m: hf.spacing_m,
+        generator: "bench",
+        vertex_cache: VertexCache::Fast,
+        quantization: None,
+        meshopt: false,
+    };
     for n in SIZES {
         let part = assemble(&grid(&hf), hf.spacing_m, &chunk(&hf, n), 4.0 * DELTA_M);
         g.throughput(Throughput::Elements(part.surface.triangle_count() as u64));
         g.bench_with_input(BenchmarkId::from_parameter(format!("{n}x{n}")), &part, |b, part| {
-            b.iter(|| encode_glb(black_box(part), None, &ctx))
+            b.iter(|| encode_glb(black_box(part), None, &ctx).expect("f32 output"))
         });
     }
     g.finish();

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
-use terrachunk::config::{Config, TextureFormat};
+use terrachunk::config::{Compress, Config, TextureFormat};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::{read_chunk, verify};
@@ -68,6 +68,11 @@ enum Command {
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
         complete_tree: bool,
+        /// How vertex data is stored: f32 (`none`, opens everywhere),
+        /// KHR_mesh_quantization (`quantize`) or that plus
+        /// EXT_meshopt_compression (`meshopt`) [default: none].
+        #[arg(long, value_enum)]
+        compress: Option<CompressArg>,
         /// Replace an existing output directory.
         #[arg(long)]
         force: bool,
@@ -153,6 +158,13 @@ struct BenchArgs {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum CompressArg {
+    None,
+    Quantize,
+    Meshopt,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum FormatArg {
     Png,
     Jpeg,
@@ -196,6 +208,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             max_texture_px,
             normal_map,
             complete_tree,
+            compress,
             force,
             report,
         } => {
@@ -238,6 +251,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             cfg.normal_map |= normal_map;
             cfg.complete_tree |= complete_tree;
+            if let Some(c) = compress {
+                cfg.compress = match c {
+                    CompressArg::None => Compress::None,
+                    CompressArg::Quantize => Compress::Quantize,
+                    CompressArg::Meshopt => Compress::Meshopt,
+                };
+            }
             let opts = BuildOptions {
                 inputs: dem,
                 out: out.clone(),

@@ -15,12 +15,13 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::chunk::{Chunk, Part};
-use crate::config::{Config, ConfigError};
+use crate::config::{Compress, Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
+use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
@@ -80,6 +81,9 @@ pub enum BuildError {
         /// δ(L), metres.
         delta_m: f64,
     },
+    /// Vertex data cannot be quantized as `compress` asks.
+    #[error(transparent)]
+    Quantize(#[from] QuantizeError),
     /// Writing failed.
     #[error("{path}: {source}")]
     Io {
@@ -97,6 +101,8 @@ impl BuildError {
             BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
             BuildError::Texture(TextureError::Encode { .. }) => 1,
             BuildError::Texture(_) => 2,
+            BuildError::Quantize(QuantizeError::Range { .. }) => 1,
+            BuildError::Quantize(_) => 2,
             BuildError::Mesh(_) | BuildError::MissedDelta { .. } | BuildError::Io { .. } => 1,
         }
     }
@@ -411,13 +417,20 @@ fn build_levels(
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
     let normals = (cfg.normal_map && colour.is_some()).then(|| NormalSource::new(grid, hf.spacing_m));
     let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
+    let quantization = cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m)).transpose()?;
     let run = Run {
         hf,
         grid,
         tree,
         opts,
         tmp,
-        ctx: GlbContext { spacing_m: hf.spacing_m, generator: &generator, vertex_cache: cfg.vertex_cache },
+        ctx: GlbContext {
+            spacing_m: hf.spacing_m,
+            generator: &generator,
+            vertex_cache: cfg.vertex_cache,
+            quantization: quantization.as_ref(),
+            meshopt: cfg.compress == Compress::Meshopt,
+        },
         texturer: texturer.as_ref(),
         timers: Timers {
             mesh: AtomicU64::new(0),
@@ -546,35 +559,37 @@ impl Run<'_> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
         let delta = tree.delta_m[level as usize];
+        // Quantized output meshes to δ less its rounding (output::compress).
+        let budget = |d: f64| self.ctx.quantization.map_or(d, |q| q.mesh_delta(d));
         let t = Instant::now();
         let spec = ChunkSpec {
             key,
             footprint: tree.footprint(key),
-            delta_m: delta,
+            delta_m: budget(delta),
             parent,
             max_vertices: MAX_VERTICES,
             dividing_lines: tree.splits(level),
         };
         let mesh = build_chunk(grid, &spec)?;
-        if mesh.max_error_m > delta {
+        if mesh.max_error_m > spec.delta_m {
             return Err(BuildError::MissedDelta {
                 level: key.level,
                 x: key.x,
                 y: key.y,
                 error_m: mesh.max_error_m,
-                delta_m: delta,
+                delta_m: spec.delta_m,
             });
         }
         Timers::add(&timers.mesh, t);
         let t = Instant::now();
         let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-        let chunk = assemble(grid, self.hf.spacing_m, &mesh, margin);
+        let chunk = Chunk { delta_m: delta, ..assemble(grid, self.hf.spacing_m, &mesh, margin) };
         Timers::add(&timers.skirt_morph, t);
         let t = Instant::now();
         let texture = self.texturer.map(|tx| tx.tile(key)).transpose()?;
         Timers::add(&timers.texture, t);
         let t = Instant::now();
-        let glb = encode_glb(&chunk, texture.as_ref(), &self.ctx);
+        let glb = encode_glb(&chunk, texture.as_ref(), &self.ctx)?;
         let path = self.tmp.join(tile_uri(key));
         std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
             .and_then(|_| std::fs::write(&path, &glb))
@@ -595,7 +610,7 @@ impl Run<'_> {
                 bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
             }),
         };
-        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
+        let stops = !self.opts.config.complete_tree && mesh.meets(budget(self.opts.config.max_error_m));
         let leaf = stops || tree.children(key).is_empty();
         let max_error_m = mesh.max_error_m;
         let built = BuiltChunk { record: TileRecord { key, min, max, delta_m: delta }, figures, max_error_m, leaf };

@@ -15,6 +15,11 @@
 //!   not morph;
 //! - structure: 3D Tiles 1.1 fields, REPLACE, geometricError = δ(L) halving
 //!   with each level, boxes that contain their content, extras that match;
+//! - compressed chunks (`compress = "quantize" | "meshopt"`) are decoded
+//!   first (`output::compress::decompress`, meshoptimizer's decoders) and
+//!   checked alike: the error against δ(L) with no allowance, the borders as
+//!   exactly, and the morph targets with the quantization step in place of
+//!   the f32 rounding;
 //! - texture (when the tileset says its chunks are textured): every tile's
 //!   texel spacing T_g = footprint / (texels − 1), from the embedded image's
 //!   size, is ≤ δ/τ_max, or the tile is as fine as its source allows, or
@@ -77,6 +82,9 @@ pub struct ChunkFile {
     pub morph_contract: bool,
     /// The texture tile(s), if the chunk has a textured material.
     pub texture: Option<ChunkTexture>,
+    /// The quantization step per axis (the node scale), metres, for a
+    /// `quantize` or `meshopt` file; None for f32 vertex data.
+    pub quantization_m: Option<[f64; 3]>,
 }
 
 /// A chunk's textures as read back.
@@ -167,6 +175,9 @@ fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
 /// Reads one chunk file.
 pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
     let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let decoded = crate::output::compress::decompress(&bytes).map_err(|e| file_err(path, e))?;
+    let quantization_m = decoded.as_ref().map(|d| d.step_m);
+    let bytes = decoded.map_or(bytes, |d| d.glb);
     let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
     let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
     let (doc, buffers, images) = gltf::import_slice(&bytes).map_err(|e| file_err(path, format!("bad glTF: {e}")))?;
@@ -239,6 +250,7 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         skirt,
         morph_contract,
         texture: read_texture(path, &json, &images)?,
+        quantization_m,
     })
 }
 
@@ -598,7 +610,11 @@ fn check_texture(
     for (role, prim) in std::iter::once(("surface", &c.surface)).chain(c.skirt.iter().map(|s| ("skirt", s))) {
         for &(set, texels) in &sets {
             let uv = if set == 0 { &prim.uv } else { &prim.uv1 };
-            if let Some(p) = check_uv(prim, uv, c.footprint, ex.spacing_m, texels) {
+            // u16 normalized coordinates round by half of 1/65535, and a
+            // cut point's position by half a step: at most 1/65535 of the
+            // footprint (a level's step is ≤ 2 · its widest footprint / 65535).
+            let rounding = c.quantization_m.map_or(0.0, |_| 1.5 / 65535.0);
+            if let Some(p) = check_uv(prim, uv, c.footprint, ex.spacing_m, texels, rounding) {
                 problems.push(format!("{role} TEXCOORD_{set}: {p}"));
             }
         }
@@ -609,7 +625,14 @@ fn check_texture(
 /// Every vertex's TEXCOORD lies in [0, 1] at
 /// `(½ + (n − 1)·(x − x0)/(x1 − x0)) / n` (and likewise for z): the
 /// footprint mapped exactly onto the texel centres.
-fn check_uv(prim: &Prim, uv: &[[f32; 2]], fp: [u32; 4], spacing: [f64; 2], texels: [u32; 2]) -> Option<String> {
+fn check_uv(
+    prim: &Prim,
+    uv: &[[f32; 2]],
+    fp: [u32; 4],
+    spacing: [f64; 2],
+    texels: [u32; 2],
+    rounding: f64,
+) -> Option<String> {
     if uv.len() != prim.positions.len() {
         return Some(format!("{} coordinates for {} vertices", uv.len(), prim.positions.len()));
     }
@@ -618,7 +641,7 @@ fn check_uv(prim: &Prim, uv: &[[f32; 2]], fp: [u32; 4], spacing: [f64; 2], texel
     // f32 rounding of the chunk-local position, then of the coordinate.
     let tol = |a: usize| {
         let cells = f64::from(spans[a].1 - spans[a].0);
-        1e-6 + 8.0 * f64::from(f32::EPSILON) * prim.local_extent[2 * a] / spacing[a] / cells
+        1e-6 + rounding + 8.0 * f64::from(f32::EPSILON) * prim.local_extent[2 * a] / spacing[a] / cells
     };
     for (p, t) in prim.positions.iter().zip(uv) {
         for a in 0..2 {
@@ -816,7 +839,7 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
     // f32 rounding of both chunks' chunk-local coordinates: horizontally (in
     // metres and in grid units), where a slope turns it into a height
     // difference, and vertically.
-    let [rx, ry, rz] = f32_rounding(c, p);
+    let [rx, ry, rz] = [0, 1, 2].map(|a| f32_rounding(c, p)[a] + half_steps(c, p, a));
     let round_grid = (rx / spacing[0]).max(rz / spacing[1]);
     let allowed = |t: u32| {
         let [gx, gz] = plane_gradient(p.surface.triangles[t as usize].map(|i| pv[i as usize]), spacing);
@@ -887,6 +910,12 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
 fn f32_rounding(a: &ChunkFile, b: &ChunkFile) -> [f64; 3] {
     let four_eps = 4.0 * f64::from(f32::EPSILON);
     [0, 1, 2].map(|k| four_eps * (a.surface.local_extent[k] + b.surface.local_extent[k]))
+}
+
+/// Half the quantization steps of two chunks along axis `a`, metres (0 for
+/// f32 files): how far each may have rounded one vertex.
+fn half_steps(a: &ChunkFile, b: &ChunkFile, axis: usize) -> f64 {
+    [a, b].iter().map(|c| c.quantization_m.map_or(0.0, |s| s[axis] / 2.0)).sum()
 }
 
 /// Gradient `[∂h/∂x, ∂h/∂z]` (m per m) of a triangle given in grid coordinates.

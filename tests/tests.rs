@@ -3,6 +3,7 @@
 
 mod bench;
 mod common;
+mod compress;
 mod dem;
 mod hard_cases;
 mod pipeline;

@@ -11,11 +11,17 @@
 //! builder types: the contract's extras (`role`, `targetNames`, the chunk
 //! record) are plain JSON, and the whole document is a few dozen lines.
 //! Files are read back with the `gltf` crate (verify, inspect, tests).
+//!
+//! With `compress = "quantize"` or `"meshopt"` the vertex data is written by
+//! [`super::compress`] instead (KHR_mesh_quantization, then
+//! EXT_meshopt_compression), and the node also carries a `scale`; the rest
+//! of the document is the same.
 
 use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
+use crate::output::compress::{self, Frame, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
@@ -26,6 +32,10 @@ pub struct GlbContext<'a> {
     pub generator: &'a str,
     /// Triangle order for the vertex cache.
     pub vertex_cache: VertexCache,
+    /// The quantization grid when vertex data is quantized (None: f32).
+    pub quantization: Option<&'a Quantization>,
+    /// Compress the quantized streams with meshoptimizer (needs `quantization`).
+    pub meshopt: bool,
 }
 
 /// The chunk-local origin: the chunk's west/north corner at its lowest point.
@@ -50,21 +60,18 @@ pub fn texcoord(p: &[f64; 3], fp: ((u32, u32), (u32, u32)), spacing_m: [f64; 2],
     [along(p[0] / spacing_m[0], x0, x1, texels[0]), along(p[2] / spacing_m[1], z0, z1, texels[1])]
 }
 
-/// Encodes `chunk` (with its texture tile, if any) as a .glb file.
-pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext) -> Vec<u8> {
-    let origin = chunk_origin(chunk);
-    let mut bin: Vec<u8> = Vec::new();
-    let mut views: Vec<Value> = Vec::new();
-    let mut accessors: Vec<Value> = Vec::new();
+/// Encodes `chunk` (with its texture tile, if any) as a .glb file. Fails
+/// only when quantized vertices fall off the planned grid.
+pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext) -> Result<Vec<u8>, QuantizeError> {
+    let frame = ctx.quantization.map(|q| q.frame(chunk)).transpose()?;
+    let origin = frame.as_ref().map_or_else(|| chunk_origin(chunk), |f| f.translation);
+    let mut sink = Sink::default();
     let mut prims: Vec<Value> = Vec::new();
     for (role, part) in [("surface", &chunk.surface), ("skirt", &chunk.skirt)] {
         if part.indices.is_empty() {
             continue;
         }
         let p = optimise(part, ctx.vertex_cache);
-        let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
-        let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
-        let pos = push_vec3(&mut bin, &mut views, &mut accessors, &local);
         // With a normal map, the map carries the shading and the vertices
         // fix its tangent frame to the map's axes (see `texture`).
         let flat_frame = texture.is_some_and(|t| t.normal.is_some());
@@ -75,20 +82,28 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         } else {
             &p.normals
         };
-        let nrm = push_vec3(&mut bin, &mut views, &mut accessors, normals);
-        let dlt = push_vec3(&mut bin, &mut views, &mut accessors, &delta);
-        let idx = push_indices(&mut bin, &mut views, &mut accessors, &p.indices);
-        let mut attributes = json!({"POSITION": pos, "NORMAL": nrm});
+        let uv = |img: &TileImage| -> Vec<[f32; 2]> {
+            p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
+        };
+        let (mut attributes, idx, dlt) = match &frame {
+            None => float_attributes(&mut sink, &p, normals, origin),
+            Some(f) => quantized_attributes(&mut sink, &p, normals, f),
+        };
         if let Some(tex) = texture {
-            let uv = |img: &TileImage| -> Vec<[f32; 2]> {
-                p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
+            let push_uv = |sink: &mut Sink, uv: &[[f32; 2]]| match frame {
+                None => push_vec2(&mut sink.bin, &mut sink.views, &mut sink.accessors, uv),
+                Some(_) => compress::push_uv(sink, uv),
             };
-            attributes["TEXCOORD_0"] = push_vec2(&mut bin, &mut views, &mut accessors, &uv(&tex.colour)).into();
+            attributes["TEXCOORD_0"] = push_uv(&mut sink, &uv(&tex.colour)).into();
             if let Some(nm) = &tex.normal {
                 let east = vec![[1.0f32, 0.0, 0.0, 1.0]; p.positions.len()];
-                attributes["TANGENT"] = push_vec4(&mut bin, &mut views, &mut accessors, &east).into();
+                attributes["TANGENT"] = match frame {
+                    None => push_vec4(&mut sink.bin, &mut sink.views, &mut sink.accessors, &east),
+                    Some(_) => compress::push_tangents(&mut sink, &east),
+                }
+                .into();
                 if nm.texels != tex.colour.texels {
-                    attributes["TEXCOORD_1"] = push_vec2(&mut bin, &mut views, &mut accessors, &uv(nm)).into();
+                    attributes["TEXCOORD_1"] = push_uv(&mut sink, &uv(nm)).into();
                 }
             }
         }
@@ -101,6 +116,8 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
             "extras": {"role": role},
         }));
     }
+    let fallback = (frame.is_some() && ctx.meshopt).then(|| compress::meshopt_pack(&mut sink));
+    let Sink { mut bin, mut views, accessors, .. } = sink;
     let k = chunk.key;
     let ((x0, x1), (z0, z1)) = chunk.footprint;
     let mut doc = json!({
@@ -134,6 +151,15 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
+    if let Some(f) = &frame {
+        doc["nodes"][0]["scale"] = json!(f.scale);
+        let used = match fallback {
+            Some(_) => json!(["KHR_mesh_quantization", "EXT_meshopt_compression"]),
+            None => json!(["KHR_mesh_quantization"]),
+        };
+        doc["extensionsUsed"] = used.clone();
+        doc["extensionsRequired"] = used;
+    }
     if let Some(tex) = texture {
         let mut images = Vec::new();
         for img in std::iter::once(&tex.colour).chain(&tex.normal) {
@@ -166,7 +192,36 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         doc["bufferViews"] = views.into();
         doc["buffers"] = json!([{"byteLength": bin.len()}]);
     }
-    glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin)
+    if let Some(n) = fallback {
+        // The compressed streams' uncompressed layout: no data of its own.
+        doc["buffers"] = json!([
+            {"byteLength": bin.len()},
+            {"byteLength": n, "extensions": {"EXT_meshopt_compression": {"fallback": true}}},
+        ]);
+    }
+    Ok(glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin))
+}
+
+/// POSITION (chunk-local f32), NORMAL, the morph target and the indices as
+/// the portable float output writes them.
+fn float_attributes(sink: &mut Sink, p: &Part, normals: &[[f32; 3]], origin: [f64; 3]) -> (Value, usize, usize) {
+    let Sink { bin, views, accessors, .. } = sink;
+    let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
+    let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
+    let pos = push_vec3(bin, views, accessors, &local);
+    let nrm = push_vec3(bin, views, accessors, normals);
+    let dlt = push_vec3(bin, views, accessors, &delta);
+    let idx = push_indices(bin, views, accessors, &p.indices);
+    (json!({"POSITION": pos, "NORMAL": nrm}), idx, dlt)
+}
+
+/// The same, quantized on the chunk's grid (KHR_mesh_quantization).
+fn quantized_attributes(sink: &mut Sink, p: &Part, normals: &[[f32; 3]], frame: &Frame) -> (Value, usize, usize) {
+    let pos = compress::push_positions(sink, frame, &p.positions);
+    let nrm = compress::push_normals(sink, normals);
+    let dlt = compress::push_deltas(sink, frame, &p.positions, &p.morph_dy);
+    let idx = compress::push_indices(sink, &p.indices, p.positions.len());
+    (json!({"POSITION": pos, "NORMAL": nrm}), idx, dlt)
 }
 
 /// Vertex-cache then vertex-fetch order (meshoptimizer); same triangles.
@@ -259,7 +314,7 @@ fn push_indices(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<V
 }
 
 /// Packs a JSON document and a binary buffer into the GLB container.
-fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
+pub(crate) fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
     let pad = |n: usize| (4 - n % 4) % 4;
     let (jl, bl) = (json.len() + pad(json.len()), bin.len() + pad(bin.len()));
     let total = 12 + 8 + jl + if bl > 0 { 8 + bl } else { 0 };

@@ -1,0 +1,232 @@
+//! `compress = "quantize" | "meshopt"`: each mode builds, passes the Khronos
+//! validator and `verify` (which decodes the files and re-measures δ, borders
+//! and morph targets); quantized borders agree exactly across neighbours;
+//! meshopt decodes to exactly what quantize writes, is smaller, and is the
+//! same at any thread count; a relief u16 cannot hold at a step small against
+//! δ is refused.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde_json::Value;
+use terrachunk::config::{Compress, Config};
+use terrachunk::output::compress::decompress;
+use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::texture::TextureSource;
+
+use crate::common::{all_files, assert_bad_input, cli, fixture, khronos_validate, verified, with_config, write_asc};
+
+fn build_mode(dem: &Path, out: &Path, compress: Compress, texture: TextureSource, threads: usize) -> Report {
+    let config = Config { max_error_m: 1.0, threads, compress, ..Config::default() };
+    let opts = BuildOptions { texture, ..with_config(dem, out, config) };
+    build(&opts).unwrap_or_else(|e| panic!("{compress:?}: {e}"))
+}
+
+fn glb_bytes(out: &Path) -> u64 {
+    all_files(out).iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")).map(|(_, b)| b.len() as u64).sum()
+}
+
+fn glb_json(bytes: &[u8]) -> Value {
+    serde_json::from_slice(&gltf::Glb::from_slice(bytes).unwrap().json).unwrap()
+}
+
+#[test]
+fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("jacksboro_fault_u16.png");
+    for (name, compress, normal_map) in [
+        ("none", Compress::None, false),
+        ("quantize", Compress::Quantize, false),
+        ("meshopt", Compress::Meshopt, false),
+        ("meshopt-normal-map", Compress::Meshopt, true),
+    ] {
+        let out = tmp.path().join(name);
+        let config = Config { max_error_m: 1.0, compress, normal_map, ..Config::default() };
+        build(&with_config(&dem, &out, config)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let v = verified(&out);
+        for (l, lv) in &v.levels {
+            assert!(lv.max_error_m <= lv.delta_m, "{name} level {l}: {} > δ {}", lv.max_error_m, lv.delta_m);
+        }
+        assert!(v.borders_checked > 0, "{name}: no borders compared");
+        let report = khronos_validate(&out);
+        assert!(report["files"].as_u64().unwrap() > 10, "{name}: {report}");
+        let (_, first) = all_files(&out).into_iter().find(|(p, _)| p.ends_with("tiles/0/0/0.glb")).unwrap();
+        let j = glb_json(&first);
+        let required = j["extensionsRequired"].clone();
+        match compress {
+            Compress::None => assert!(required.is_null() && j["nodes"][0]["scale"].is_null(), "{name}: {j}"),
+            Compress::Quantize => assert_eq!(required, serde_json::json!(["KHR_mesh_quantization"])),
+            Compress::Meshopt => {
+                assert_eq!(required, serde_json::json!(["KHR_mesh_quantization", "EXT_meshopt_compression"]));
+                assert_eq!(j["buffers"][1]["extensions"]["EXT_meshopt_compression"]["fallback"], true);
+            }
+        }
+    }
+}
+
+#[test]
+fn meshopt_over_nodata_and_below_sea_level_verifies_and_validates() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, max_error_m) in [("west_bijou_gully_3m.asc", 0.25), ("salish_sea_topobathy_f32.tif", 5.0)] {
+        let out = tmp.path().join(name);
+        let config = Config { max_error_m, compress: Compress::Meshopt, ..Config::default() };
+        build(&with_config(&fixture(name), &out, config)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        verified(&out);
+        khronos_validate(&out);
+    }
+}
+
+#[test]
+fn quantized_and_meshopt_files_are_smaller_and_meshopt_decodes_to_quantize() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("mount_st_helens_30m.tif");
+    let mut bytes = BTreeMap::new();
+    for (name, compress) in [("none", Compress::None), ("quantize", Compress::Quantize), ("meshopt", Compress::Meshopt)]
+    {
+        build_mode(&dem, &tmp.path().join(name), compress, TextureSource::None, 0);
+        bytes.insert(name, glb_bytes(&tmp.path().join(name)));
+    }
+    assert!(bytes["quantize"] < bytes["none"], "{bytes:?}");
+    assert!(bytes["meshopt"] < bytes["quantize"], "{bytes:?}");
+    let (q, m) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("meshopt")));
+    assert_eq!(q.len(), m.len(), "quantize and meshopt make the same chunks");
+    for ((pq, dq), (pm, dm)) in q.iter().zip(&m) {
+        assert_eq!(pq, pm);
+        if pq.extension().is_some_and(|e| e == "glb") {
+            let (a, b) = (decompress(dq).unwrap().unwrap(), decompress(dm).unwrap().unwrap());
+            assert!(a.glb == b.glb, "{}: meshopt decodes to other geometry than quantize", pq.display());
+            assert_eq!(a.step_m, b.step_m);
+        }
+    }
+}
+
+/// Surface vertices of a `quantize` chunk in world metres, computed in f64
+/// from the raw u16 steps: translation + scale · steps.
+fn quantized_surface(bytes: &[u8]) -> Vec<[f64; 3]> {
+    let glb = gltf::Glb::from_slice(bytes).unwrap();
+    let j: Value = serde_json::from_slice(&glb.json).unwrap();
+    let bin = glb.bin.unwrap();
+    let node = &j["nodes"][0];
+    let t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let prim =
+        j["meshes"][0]["primitives"].as_array().unwrap().iter().find(|p| p["extras"]["role"] == "surface").unwrap();
+    let acc = &j["accessors"][prim["attributes"]["POSITION"].as_u64().unwrap() as usize];
+    assert_eq!(acc["componentType"], 5123, "u16 positions");
+    let view = &j["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+    let (offset, stride) =
+        (view["byteOffset"].as_u64().unwrap() as usize, view["byteStride"].as_u64().unwrap() as usize);
+    (0..acc["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            let b = &bin[offset + i * stride..];
+            [0, 1, 2].map(|a| t[a] + s[a] * f64::from(u16::from_le_bytes([b[2 * a], b[2 * a + 1]])))
+        })
+        .collect()
+}
+
+#[test]
+fn border_vertices_agree_across_neighbours_after_quantisation() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("q");
+    let report = build_mode(&fixture("jacksboro_fault_u16.png"), &out, Compress::Quantize, TextureSource::None, 0);
+    let spacing = report.spacing_m;
+    let files: BTreeMap<(u32, u32, u32), Vec<[f64; 3]>> = all_files(&out)
+        .into_iter()
+        .filter(|(p, _)| p.extension().is_some_and(|e| e == "glb"))
+        .map(|(p, b)| {
+            let k: Vec<u32> =
+                p.with_extension("").iter().skip(1).map(|c| c.to_str().unwrap().parse().unwrap()).collect();
+            ((k[0], k[1], k[2]), quantized_surface(&b))
+        })
+        .collect();
+    let ts: Value = serde_json::from_str(&std::fs::read_to_string(out.join("tileset.json")).unwrap()).unwrap();
+    let mut footprints = BTreeMap::new();
+    for (p, b) in all_files(&out).iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")) {
+        let k: Vec<u32> = p.with_extension("").iter().skip(1).map(|c| c.to_str().unwrap().parse().unwrap()).collect();
+        let fp = glb_json(b)["nodes"][0]["extras"]["terrachunk"]["footprint"].clone();
+        footprints.insert((k[0], k[1], k[2]), [fp["x1"].as_u64().unwrap(), fp["z1"].as_u64().unwrap()]);
+    }
+    assert!(ts["root"].is_object());
+    let mut compared = 0;
+    for (&(l, x, y), verts) in &files {
+        for (east, nk) in [(true, (l, x + 1, y)), (false, (l, x, y + 1))] {
+            let Some(other) = files.get(&nk) else { continue };
+            let (axis, along) = if east { (0, 2) } else { (2, 0) };
+            let line = footprints[&(l, x, y)][usize::from(!east)] as f64 * spacing[axis / 2];
+            let on = |v: &Vec<[f64; 3]>| {
+                let mut s: Vec<[f64; 2]> = v
+                    .iter()
+                    .filter(|p| (p[axis] - line).abs() < 1e-9 * line.max(1.0))
+                    .map(|p| [p[along], p[1]])
+                    .collect();
+                s.sort_by(|a, b| a[0].total_cmp(&b[0]));
+                s
+            };
+            let (a, b) = (on(verts), on(other));
+            assert!(!a.is_empty(), "{l}/{x}/{y}: no vertex on its border");
+            assert_eq!(a.len(), b.len(), "{l}/{x}/{y} and {nk:?}: different border vertex counts");
+            for (p, q) in a.iter().zip(&b) {
+                assert!((p[0] - q[0]).abs() <= 1e-9 * p[0].abs().max(1.0), "{l}/{x}/{y} vs {nk:?}: {p:?} / {q:?}");
+                assert_eq!(p[1], q[1], "{l}/{x}/{y} vs {nk:?}: border heights differ after quantisation");
+            }
+            compared += 1;
+        }
+    }
+    assert!(compared > 10, "only {compared} borders compared");
+}
+
+#[test]
+fn meshopt_output_is_byte_identical_twice_and_with_one_and_two_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("jacksboro_fault_u16.png");
+    let runs = [("a", 1), ("b", 2), ("c", 2)];
+    for (name, threads) in runs {
+        build_mode(&dem, &tmp.path().join(name), Compress::Meshopt, TextureSource::Generated, threads);
+    }
+    let a = all_files(&tmp.path().join("a"));
+    assert!(a.len() > 10);
+    for (name, _) in &runs[1..] {
+        let b = all_files(&tmp.path().join(name));
+        assert_eq!(a.len(), b.len());
+        for ((pa, da), (pb, db)) in a.iter().zip(&b) {
+            assert_eq!(pa, pb);
+            assert!(da == db, "{} differs between runs", pa.display());
+        }
+    }
+}
+
+#[test]
+fn inspect_reads_meshopt_chunks_and_the_flag_reaches_the_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("m");
+    let dem = fixture("dfw_texas_srtm3.tif");
+    let o = cli(&[
+        "build",
+        dem.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--compress",
+        "meshopt",
+        "--texture",
+        "none",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let glb = out.join("tiles/0/0/0.glb");
+    assert!(glb_json(&std::fs::read(&glb).unwrap())["extensionsUsed"].to_string().contains("EXT_meshopt_compression"));
+    let o = cli(&["inspect", glb.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success() && text.contains("surface") && text.contains("vertices"), "{text}");
+    let o = cli(&["verify", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+}
+
+#[test]
+fn a_relief_too_tall_for_u16_heights_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 100 km of relief against 5 cm: a u16 height would need 1.5 m steps.
+    let dem = write_asc(tmp.path(), "tall.asc", 9, 9, |i, j| if i == 4 && j == 4 { 100_000.0 } else { 0.0 });
+    let out = tmp.path().join("out");
+    let args =
+        ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--max-error", "0.05", "--compress", "quantize"];
+    assert_bad_input(&args, &out, "needs a height step");
+}
