@@ -22,6 +22,7 @@ use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::output::gltf::{GlbContext, encode_glb};
+use crate::geodesy::Placement;
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree};
 use crate::texture::source::{generate, load_image};
@@ -688,6 +689,7 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
         delta_m: tree.delta_m.clone(),
         source: opts.inputs.iter().map(|p| p.display().to_string()).collect(),
         georef: hf.georef.clone(),
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m),
         morph: MorphConvention {
             target: "parent".into(),
             delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \

@@ -3,7 +3,11 @@
 //! glTF content is y-up; 3D Tiles is z-up and rotates y-up glTF by +90° about
 //! x when loading it (3D Tiles 1.1, "glTF transforms"), so a world point
 //! (x, y, z) of a chunk sits at (x, −z, y) in tileset coordinates: east,
-//! north, up. Bounding boxes are given in that frame. What 3D Tiles does not
+//! north, up. Bounding boxes are given in that frame. For a georeferenced
+//! grid whose CRS `geodesy` can invert, the root carries a `transform` that
+//! puts that frame on the WGS 84 globe (the east-north-up frame at the grid
+//! centre; `extras.terrachunk.placement` says where and how); other grids
+//! have none and stay in their local frame. What 3D Tiles does not
 //! carry (levels, morph, skirts, τ_max, texture sizing) goes into `extras.terrachunk`, whose
 //! shape is the types below and whose JSON Schemas in `schemas/` are
 //! generated from them.
@@ -12,6 +16,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use crate::geodesy::Placement;
 use crate::heightfield::Georef;
 use crate::quadtree::{ChunkKey, ChunkTree};
 use crate::texture::TextureExtras;
@@ -40,6 +45,11 @@ pub struct TilesetExtras {
     pub source: Vec<String>,
     /// Georeference of the source, and the local tangent plane if geographic.
     pub georef: Georef,
+    /// Where the root `transform` puts the grid on the WGS 84 globe (absent
+    /// when the CRS is unknown or not one terrachunk can invert; the
+    /// tileset then has no transform).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<Placement>,
     /// How to read the morph targets.
     pub morph: MorphConvention,
     /// How deep the skirts hang.
@@ -165,6 +175,10 @@ pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetEx
             "children": tops.into_iter().map(|t| t.0).collect::<Vec<_>>(),
         })
     };
+    let mut root = root;
+    if let Some(p) = &extras.placement {
+        root["transform"] = json!(p.transform());
+    }
     json!({
         "asset": {"version": "1.1", "generator": extras.generator},
         "geometricError": 4.0 * delta0,
