@@ -6,5 +6,6 @@ mod common;
 mod dem;
 mod hard_cases;
 mod pipeline;
+mod placement;
 mod properties;
 mod texture;

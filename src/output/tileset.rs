@@ -156,21 +156,28 @@ pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetEx
     }
     let tops: Vec<(Value, [f64; 3], [f64; 3])> =
         tree.roots().into_iter().filter_map(find).map(|r| tile(tree, r, &find)).collect();
-    let delta0 = tree.delta_m[0];
+    // The error of drawing nothing at all is the whole terrain, not a level's
+    // δ: 3D Tiles clients skip a tileset (or stop at a content-less tile)
+    // whose error is below their bound on screen, so a terrain tileset
+    // claiming 4·δ(0) vanished a few kilometres away in CesiumJS. The box's
+    // diagonal keeps it drawn until the whole tileset is smaller than the
+    // bound in pixels.
+    let (lo, hi) = tops.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), (_, l, h)| {
+        for a in 0..3 {
+            lo[a] = lo[a].min(l[a]);
+            hi[a] = hi[a].max(h[a]);
+        }
+        (lo, hi)
+    });
+    let whole = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
     let root = if tops.len() == 1 {
         tops.into_iter().next().expect("one top").0
     } else {
-        // A non-square grid: a content-less root over its near-square cells.
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for (_, l, h) in &tops {
-            for a in 0..3 {
-                lo[a] = lo[a].min(l[a]);
-                hi[a] = hi[a].max(h[a]);
-            }
-        }
+        // A non-square grid: a content-less root over its near-square cells
+        // (it must always refine into them: see `whole`).
         json!({
             "boundingVolume": {"box": tiles_box(lo, hi)},
-            "geometricError": 2.0 * delta0,
+            "geometricError": whole.max(2.0 * tree.delta_m[0]),
             "refine": "REPLACE",
             "children": tops.into_iter().map(|t| t.0).collect::<Vec<_>>(),
         })
@@ -181,7 +188,7 @@ pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetEx
     }
     json!({
         "asset": {"version": "1.1", "generator": extras.generator},
-        "geometricError": 4.0 * delta0,
+        "geometricError": whole.max(4.0 * tree.delta_m[0]),
         "root": root,
         "extras": {"terrachunk": extras},
     })

@@ -137,7 +137,7 @@ def main():
     ap.add_argument("tileset")
     ap.add_argument("--has-nodata", action="store_true", help="the DEM has voids: holes are not failures")
     args = ap.parse_args()
-    print(f"pymeshlab {pymeshlab.__version__ if hasattr(pymeshlab, '__version__') else ''}".strip())
+    print(f"pymeshlab {importlib.metadata.version('pymeshlab')}")
     _, picks = glbref.pick_chunks(args.tileset)
     failures = []
     for label, key, _parent in picks:
