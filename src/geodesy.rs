@@ -14,7 +14,8 @@
 //!   `heightfield::LocalTangent` already is the ENU plane at the centre (the
 //!   map comes out as the identity);
 //! - UTM (WGS 84: EPSG 326zz north, 327zz south; NAD83: 269zz; ETRS89:
-//!   258zz): the inverse transverse Mercator of Karney (2011), "Transverse
+//!   258zz; NAD27: 267zz, shifted to WGS 84 by the CONUS mean geocentric
+//!   offset, ±5–10 m): the inverse transverse Mercator of Karney (2011), "Transverse
 //!   Mercator with an accuracy of a few nanometers", J. Geodesy 85, eqs. 7,
 //!   11, 15 and 36 (Krüger's series to n⁶, nanometre accuracy within a
 //!   zone); the map then holds the grid's meridian convergence γ (grid north
@@ -158,8 +159,8 @@ impl Placement {
 enum Inverse {
     /// Longitude/latitude degrees already.
     Geographic,
-    /// UTM zone 1..=60, northern hemisphere or not.
-    Utm { zone: u32, north: bool, datum: &'static str },
+    /// UTM zone 1..=60, northern hemisphere or not, on a datum.
+    Utm { zone: u32, north: bool, datum: Datum },
     /// Spherical (Web) Mercator on the WGS 84 semi-major axis.
     WebMercator,
 }
@@ -172,10 +173,13 @@ impl Inverse {
             // other datums are tens to hundreds of metres away: not placed.
             Crs::Geographic { epsg: None | Some(4326 | 4269 | 4258) } => Some(Inverse::Geographic),
             Crs::Projected { epsg: Some(code) } => match code {
-                32601..=32660 => Some(Inverse::Utm { zone: code - 32600, north: true, datum: "WGS 84" }),
-                32701..=32760 => Some(Inverse::Utm { zone: code - 32700, north: false, datum: "WGS 84" }),
-                26901..=26923 => Some(Inverse::Utm { zone: code - 26900, north: true, datum: "NAD83 as WGS 84" }),
-                25828..=25838 => Some(Inverse::Utm { zone: code - 25800, north: true, datum: "ETRS89 as WGS 84" }),
+                32601..=32660 => Some(Inverse::Utm { zone: code - 32600, north: true, datum: DATUM_WGS84 }),
+                32701..=32760 => Some(Inverse::Utm { zone: code - 32700, north: false, datum: DATUM_WGS84 }),
+                26901..=26923 => Some(Inverse::Utm { zone: code - 26900, north: true, datum: DATUM_NAD83 }),
+                25828..=25838 => Some(Inverse::Utm { zone: code - 25800, north: true, datum: DATUM_ETRS89 }),
+                // NAD27 UTM (legacy USGS DEMs, Mount St Helens' fixture):
+                // placed to the CONUS mean shift's ±5–10 m.
+                26703..=26722 => Some(Inverse::Utm { zone: code - 26700, north: true, datum: DATUM_NAD27 }),
                 3857 | 3785 | 900_913 | 102_100 | 102_113 => Some(Inverse::WebMercator),
                 _ => None,
             },
@@ -187,8 +191,9 @@ impl Inverse {
         match self {
             Inverse::Geographic => "geographic degrees (WGS 84) on the local tangent plane".into(),
             Inverse::Utm { zone, north, datum } => format!(
-                "UTM zone {zone}{} ({datum}), inverse transverse Mercator by Krüger's series to n^6 (Karney 2011)",
-                if *north { "N" } else { "S" }
+                "UTM zone {zone}{} ({}), inverse transverse Mercator by Krüger's series to n^6 (Karney 2011)",
+                if *north { "N" } else { "S" },
+                datum.name
             ),
             Inverse::WebMercator => "Web Mercator, spherical inverse".into(),
         }
@@ -198,10 +203,15 @@ impl Inverse {
     fn geodetic(&self, p: [f64; 2]) -> Option<(f64, f64)> {
         match *self {
             Inverse::Geographic => Some((p[1], p[0])),
-            Inverse::Utm { zone, north, .. } => {
+            Inverse::Utm { zone, north, datum } => {
                 let lon0 = f64::from(zone) * 6.0 - 183.0;
                 let northing = if north { p[1] } else { p[1] - 10_000_000.0 };
-                Some(tm_inverse(p[0] - 500_000.0, northing, lon0, UTM_K0))
+                let (lat, lon) = tm_inverse_on(datum.ellipsoid, p[0] - 500_000.0, northing, lon0, UTM_K0);
+                if datum.to_wgs84_m == [0.0; 3] {
+                    return Some((lat, lon));
+                }
+                let q = ecef_on(datum.ellipsoid, lat, lon, 0.0);
+                Some(geodetic_of_ecef([0, 1, 2].map(|a| q[a] + datum.to_wgs84_m[a])))
             }
             Inverse::WebMercator => {
                 Some(((p[1] / WGS84_A).sinh().atan().to_degrees(), (p[0] / WGS84_A).to_degrees()))
@@ -213,9 +223,44 @@ impl Inverse {
 /// UTM's central scale factor.
 pub const UTM_K0: f64 = 0.9996;
 
-/// Krüger series coefficients for WGS 84, from its third flattening n: the
-/// rectifying radius A, and α (forward) and β (inverse), Karney (2011)
-/// eqs. 14, 35 and 36.
+/// An ellipsoid: semi-major axis (m) and flattening.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ellipsoid {
+    /// Semi-major axis, metres.
+    pub a: f64,
+    /// Flattening.
+    pub f: f64,
+}
+
+/// WGS 84 (GRS 80 differs from it by 0.1 mm in the semi-minor axis).
+pub const WGS84: Ellipsoid = Ellipsoid { a: WGS84_A, f: WGS84_F };
+/// Clarke 1866, NAD27's ellipsoid (a = 6 378 206.4 m, b = 6 356 583.8 m).
+pub const CLARKE_1866: Ellipsoid = Ellipsoid { a: 6_378_206.4, f: 1.0 - 6_356_583.8 / 6_378_206.4 };
+
+/// A datum as this module uses it: its ellipsoid and the geocentric shift
+/// that takes its ECEF coordinates to WGS 84's.
+#[derive(Clone, Copy, Debug)]
+struct Datum {
+    name: &'static str,
+    ellipsoid: Ellipsoid,
+    to_wgs84_m: [f64; 3],
+}
+
+const DATUM_WGS84: Datum = Datum { name: "WGS 84", ellipsoid: WGS84, to_wgs84_m: [0.0; 3] };
+const DATUM_NAD83: Datum = Datum { name: "NAD83 as WGS 84", ellipsoid: WGS84, to_wgs84_m: [0.0; 3] };
+const DATUM_ETRS89: Datum = Datum { name: "ETRS89 as WGS 84", ellipsoid: WGS84, to_wgs84_m: [0.0; 3] };
+/// NAD27 → WGS 84, the mean for the conterminous US (NIMA TR8350.2, table
+/// B.1, "NAS-C": ±5 m, ±5 m, ±6 m); NADCON's grids would do better (0.15 m)
+/// but do not ship.
+const DATUM_NAD27: Datum = Datum {
+    name: "NAD27 to WGS 84 by the CONUS mean shift (-8, 160, 176) m, +-5-10 m",
+    ellipsoid: CLARKE_1866,
+    to_wgs84_m: [-8.0, 160.0, 176.0],
+};
+
+/// Krüger series coefficients for an ellipsoid, from its third flattening
+/// n: the rectifying radius A, and α (forward) and β (inverse), Karney
+/// (2011) eqs. 14, 35 and 36.
 struct Kruger {
     a_rect: f64,
     alpha: [f64; 6],
@@ -223,12 +268,12 @@ struct Kruger {
     e: f64,
 }
 
-fn kruger() -> Kruger {
-    let f = WGS84_F;
+fn kruger(ell: Ellipsoid) -> Kruger {
+    let f = ell.f;
     let n = f / (2.0 - f);
     let (n2, n3) = (n * n, n * n * n);
     let (n4, n5, n6) = (n3 * n, n3 * n2, n3 * n3);
-    let a_rect = WGS84_A / (1.0 + n) * (1.0 + n2 / 4.0 + n4 / 64.0 + n6 / 256.0);
+    let a_rect = ell.a / (1.0 + n) * (1.0 + n2 / 4.0 + n4 / 64.0 + n6 / 256.0);
     let alpha = [
         n / 2.0 - 2.0 * n2 / 3.0 + 5.0 * n3 / 16.0 + 41.0 * n4 / 180.0 - 127.0 * n5 / 288.0 + 7891.0 * n6 / 37800.0,
         13.0 * n2 / 48.0 - 3.0 * n3 / 5.0 + 557.0 * n4 / 1440.0 + 281.0 * n5 / 630.0 - 1_983_433.0 * n6 / 1_935_360.0,
@@ -259,7 +304,12 @@ fn conformal_tan(tau: f64, e: f64) -> f64 {
 /// the point `x` metres east and `y` metres north of where the central
 /// meridian `lon0_deg` crosses the equator, with central scale `k0`.
 pub fn tm_inverse(x: f64, y: f64, lon0_deg: f64, k0: f64) -> (f64, f64) {
-    let k = kruger();
+    tm_inverse_on(WGS84, x, y, lon0_deg, k0)
+}
+
+/// [`tm_inverse`] on another ellipsoid (latitude and longitude on it).
+pub fn tm_inverse_on(ell: Ellipsoid, x: f64, y: f64, lon0_deg: f64, k0: f64) -> (f64, f64) {
+    let k = kruger(ell);
     let xi = y / (k0 * k.a_rect);
     let eta = x / (k0 * k.a_rect);
     // ζ′ = ζ − Σ β_j sin 2jζ with ζ = ξ + iη (eq. 11).
@@ -290,7 +340,7 @@ pub fn tm_inverse(x: f64, y: f64, lon0_deg: f64, k0: f64) -> (f64, f64) {
 /// metres `(x, y)` east and north of the central meridian's equator
 /// crossing, for latitude/longitude in degrees. The inverse's test partner.
 pub fn tm_forward(lat_deg: f64, lon_deg: f64, lon0_deg: f64, k0: f64) -> (f64, f64) {
-    let k = kruger();
+    let k = kruger(WGS84);
     let tau1 = conformal_tan(lat_deg.to_radians().tan(), k.e);
     let lam = (lon_deg - lon0_deg).to_radians();
     let xi1 = tau1.atan2(lam.cos());
@@ -306,11 +356,31 @@ pub fn tm_forward(lat_deg: f64, lon_deg: f64, lon0_deg: f64, k0: f64) -> (f64, f
 
 /// ECEF metres of a WGS 84 latitude/longitude (degrees) and ellipsoidal height.
 pub fn ecef(lat_deg: f64, lon_deg: f64, h: f64) -> [f64; 3] {
-    let e2 = WGS84_F * (2.0 - WGS84_F);
+    ecef_on(WGS84, lat_deg, lon_deg, h)
+}
+
+/// [`ecef`] on another ellipsoid (centred, axes aligned).
+pub fn ecef_on(ell: Ellipsoid, lat_deg: f64, lon_deg: f64, h: f64) -> [f64; 3] {
+    let e2 = ell.f * (2.0 - ell.f);
     let (sp, cp) = lat_deg.to_radians().sin_cos();
     let (sl, cl) = lon_deg.to_radians().sin_cos();
-    let n = WGS84_A / (1.0 - e2 * sp * sp).sqrt();
+    let n = ell.a / (1.0 - e2 * sp * sp).sqrt();
     [(n + h) * cp * cl, (n + h) * cp * sl, (n * (1.0 - e2) + h) * sp]
+}
+
+/// WGS 84 `(latitude, longitude)` degrees of an ECEF point near the surface
+/// (fixed-point iteration on the latitude; sub-millimetre in 5 steps for
+/// heights of a few km).
+pub fn geodetic_of_ecef(p: [f64; 3]) -> (f64, f64) {
+    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let r = p[0].hypot(p[1]);
+    let mut lat = p[2].atan2(r * (1.0 - e2));
+    for _ in 0..8 {
+        let n = WGS84_A / (1.0 - e2 * lat.sin().powi(2)).sqrt();
+        let h = r / lat.cos() - n;
+        lat = p[2].atan2(r * (1.0 - e2 * n / (n + h)));
+    }
+    (lat.to_degrees(), p[1].atan2(p[0]).to_degrees())
 }
 
 /// The east-north-up frame at a latitude/longitude on the ellipsoid.
@@ -491,7 +561,26 @@ mod tests {
         assert!(Placement::of_grid(&g, 3, 3, [1.0, 1.0]).is_none());
         g.crs = Crs::Projected { epsg: Some(2154) }; // Lambert-93: not inverted here.
         assert!(Placement::of_grid(&g, 3, 3, [1.0, 1.0]).is_none());
-        g.crs = Crs::Geographic { epsg: Some(4267) }; // NAD27: ~100 m off WGS 84.
+        g.crs = Crs::Geographic { epsg: Some(4267) }; // NAD27 degrees: ~100 m off WGS 84.
         assert!(Placement::of_grid(&g, 3, 3, [1.0, 1.0]).is_none());
+    }
+
+    #[test]
+    fn nad27_utm_is_shifted_onto_wgs84_as_proj_does_with_the_same_parameters() {
+        // PROJ: "+proj=utm +zone=10 +ellps=clrk66 +towgs84=-8,160,176" → EPSG:4326.
+        let inverse = Inverse::for_crs(&Crs::Projected { epsg: Some(26710) }).unwrap();
+        let (lat, lon) = inverse.geodetic([562_000.0, 5_117_000.0]).unwrap();
+        assert!((lat - 46.205_523_367_098_46).abs() < 1e-8 && (lon + 122.197_532_744_084_78).abs() < 1e-8, "{lat} {lon}");
+        // On Clarke 1866 itself, before the shift.
+        let (la, lo) = tm_inverse_on(CLARKE_1866, 62_000.0, 5_117_000.0, -123.0, UTM_K0);
+        assert!((la - 46.205_714_778_209_156).abs() < 1e-10 && (lo + 122.196_340_383_205_54).abs() < 1e-10);
+    }
+
+    #[test]
+    fn ecef_round_trips() {
+        for (lat, lon) in [(46.2, -122.19), (-33.9, 151.2), (0.0, 0.0), (89.0, 10.0)] {
+            let (la, lo) = geodetic_of_ecef(ecef(lat, lon, 0.0));
+            assert!((la - lat).abs() < 1e-11 && (lo - lon).abs() < 1e-11);
+        }
     }
 }

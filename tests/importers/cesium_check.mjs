@@ -67,6 +67,9 @@ function proj4Def(crs) {
   if (e >= 32601 && e <= 32660) return `+proj=utm +zone=${e - 32600} +datum=WGS84 +units=m +no_defs`;
   if (e >= 32701 && e <= 32760) return `+proj=utm +zone=${e - 32700} +south +datum=WGS84 +units=m +no_defs`;
   if (e >= 26901 && e <= 26923) return `+proj=utm +zone=${e - 26900} +datum=NAD83 +units=m +no_defs`;
+  // NAD27 UTM with the CONUS mean shift terrachunk also uses (its code is
+  // independent; its datum parameters are not, and NADCON would differ by metres).
+  if (e >= 26703 && e <= 26722) return `+proj=utm +zone=${e - 26700} +ellps=clrk66 +towgs84=-8,160,176,0,0,0,0 +units=m +no_defs`;
   if (e >= 25828 && e <= 25838) return `+proj=utm +zone=${e - 25800} +ellps=GRS80 +towgs84=0,0,0 +units=m +no_defs`;
   if ([3857, 3785, 900913, 102100, 102113].includes(e)) return "EPSG:3857";
   return null;

@@ -81,6 +81,8 @@ class Chunk:
                 targets = prim.get("targets", [])
                 part["delta"] = self.accessor(targets[0]["POSITION"]) if targets else None
                 part["world"] = part["local"] * self.scale + self.translation
+                # A morph delta lives in the mesh's space too: the node's scale applies.
+                part["world_delta"] = part["delta"] * self.scale if part["delta"] is not None else None
             self.parts[role] = part
         self.texture = self._texture()
 
@@ -232,6 +234,31 @@ def pick_chunks(tileset_dir):
                 break
     chosen = [("root", root), ("skirted", skirted), ("leaf", leaf)]
     return ts, [(label, k, parent[k]) for label, k in chosen if k is not None]
+
+
+def tile_box(ts, key):
+    """(min, max) corners, z-up tileset frame, of the tile `key`'s
+    boundingVolume.box in tileset.json (an axis-aligned box, as written)."""
+
+    def find(t):
+        e = (t.get("extras") or {}).get("terrachunk")
+        if e and (e["level"], e["x"], e["y"]) == tuple(key):
+            return t
+        for c in t.get("children", []):
+            f = find(c)
+            if f is not None:
+                return f
+        return None
+
+    b = np.array(find(ts["root"])["boundingVolume"]["box"], dtype=np.float64)
+    half = np.abs(b[3:6]) + np.abs(b[6:9]) + np.abs(b[9:12])
+    return b[:3] - half, b[:3] + half
+
+
+def footprint_xz(ref):
+    """The chunk's footprint from its node extras, glTF frame: (x0, x1), (z0, z1) metres."""
+    fp, sp = ref.extras["footprint"], ref.extras["spacing_m"]
+    return (fp["x0"] * sp[0], fp["x1"] * sp[0]), (fp["z0"] * sp[1], fp["z1"] * sp[1])
 
 
 def chunk_path(tileset_dir, key):

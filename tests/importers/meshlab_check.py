@@ -42,7 +42,7 @@ def load(path):
     return ms
 
 
-def check_chunk(tileset, label, key, has_nodata, failures):
+def check_chunk(tileset, ts, label, key, has_nodata, failures):
     path = glbref.chunk_path(tileset, key)
     ref = glbref.Chunk(path)
     fail = lambda msg: failures.append(f"{label} {glbref.name(key)}: {msg}")  # noqa: E731
@@ -61,6 +61,17 @@ def check_chunk(tileset, label, key, has_nodata, failures):
     box_err = max(np.abs(lo - rlo).max(), np.abs(hi - rhi).max())
     if box_err > tol:
         fail(f"world box {lo.round(3)}..{hi.round(3)} differs from the file's {rlo.round(3)}..{rhi.round(3)}")
+
+    # x/z extent = the footprint in the node extras; inside tileset.json's box.
+    (x0, x1), (z0, z1) = glbref.footprint_xz(ref)
+    fp_err = max(abs(lo[0] - x0), abs(hi[0] - x1), abs(lo[2] - z0), abs(hi[2] - z1))
+    if fp_err > tol:
+        fail(f"x/z extent {lo[[0, 2]].round(3)}..{hi[[0, 2]].round(3)} is not the footprint {(x0, x1)}, {(z0, z1)}")
+    blo, bhi = glbref.tile_box(ts, key)
+    zlo, zhi = glbref.to_z_up(lo), glbref.to_z_up(hi)
+    zlo, zhi = np.minimum(zlo, zhi), np.maximum(zlo, zhi)
+    if (zlo < blo - tol).any() or (zhi > bhi + tol).any():
+        fail(f"world box leaves the tileset.json box {blo.round(3)}..{bhi.round(3)} (z-up)")
 
     # The same triangles in the same order: corner positions face by face.
     face_err = float("nan")
@@ -138,11 +149,11 @@ def main():
     ap.add_argument("--has-nodata", action="store_true", help="the DEM has voids: holes are not failures")
     args = ap.parse_args()
     print(f"pymeshlab {importlib.metadata.version('pymeshlab')}")
-    _, picks = glbref.pick_chunks(args.tileset)
+    ts, picks = glbref.pick_chunks(args.tileset)
     failures = []
     for label, key, _parent in picks:
         try:
-            check_chunk(args.tileset, label, key, args.has_nodata, failures)
+            check_chunk(args.tileset, ts, label, key, args.has_nodata, failures)
         except Exception as e:  # a reader exception is a finding, not a crash
             failures.append(f"{label} {glbref.name(key)}: {type(e).__name__}: {e}")
     for f in failures:
