@@ -213,9 +213,7 @@ impl Inverse {
                 let q = ecef_on(datum.ellipsoid, lat, lon, 0.0);
                 Some(geodetic_of_ecef([0, 1, 2].map(|a| q[a] + datum.to_wgs84_m[a])))
             }
-            Inverse::WebMercator => {
-                Some(((p[1] / WGS84_A).sinh().atan().to_degrees(), (p[0] / WGS84_A).to_degrees()))
-            }
+            Inverse::WebMercator => Some(((p[1] / WGS84_A).sinh().atan().to_degrees(), (p[0] / WGS84_A).to_degrees())),
         }
     }
 }
@@ -416,8 +414,26 @@ mod tests {
     // Krüger series ("etmerc"); PROJ's own tests hold it to a few nm.
     // (lat, lon, zone, north, easting, northing, convergence °, scale)
     const UTM_POINTS: [(f64, f64, u32, bool, f64, f64, f64, f64); 4] = [
-        (46.2, -122.19, 10, true, 562_493.727_139_248_5, 5_116_588.096_568_971, 0.584_644_624_601_959, 0.999_648_008_137_934_3),
-        (-33.8688, 151.2093, 56, false, 334_368.633_648_097, 6_250_948.345_385_009, 0.998_171_855_894_576_5, 0.999_938_200_544_060_1),
+        (
+            46.2,
+            -122.19,
+            10,
+            true,
+            562_493.727_139_248_5,
+            5_116_588.096_568_971,
+            0.584_644_624_601_959,
+            0.999_648_008_137_934_3,
+        ),
+        (
+            -33.8688,
+            151.2093,
+            56,
+            false,
+            334_368.633_648_097,
+            6_250_948.345_385_009,
+            0.998_171_855_894_576_5,
+            0.999_938_200_544_060_1,
+        ),
         (0.0, 0.0, 31, true, 166_021.443_080_540_57, 0.0, 0.0, 1.000_981_061_558_583),
         (71.0, 27.0, 35, true, 500_000.0, 7_877_396.766_691_192, 0.0, 0.999_599_999_950_525_4),
     ];
@@ -581,7 +597,10 @@ mod tests {
         // PROJ: "+proj=utm +zone=10 +ellps=clrk66 +towgs84=-8,160,176" → EPSG:4326.
         let inverse = Inverse::for_crs(&Crs::Projected { epsg: Some(26710) }).unwrap();
         let (lat, lon) = inverse.geodetic([562_000.0, 5_117_000.0]).unwrap();
-        assert!((lat - 46.205_523_367_098_46).abs() < 1e-8 && (lon + 122.197_532_744_084_78).abs() < 1e-8, "{lat} {lon}");
+        assert!(
+            (lat - 46.205_523_367_098_46).abs() < 1e-8 && (lon + 122.197_532_744_084_78).abs() < 1e-8,
+            "{lat} {lon}"
+        );
         // On Clarke 1866 itself, before the shift.
         let (la, lo) = tm_inverse_on(CLARKE_1866, 62_000.0, 5_117_000.0, -123.0, UTM_K0);
         assert!((la - 46.205_714_778_209_156).abs() < 1e-10 && (lo + 122.196_340_383_205_54).abs() < 1e-10);

@@ -9,12 +9,8 @@ use crate::common::{build_ok, fixture, tileset};
 
 /// The root transform (column-major) applied to a point in tileset metres.
 fn apply(ts: &Value, p: [f64; 3]) -> [f64; 3] {
-    let m: Vec<f64> = ts["root"]["transform"]
-        .as_array()
-        .expect("root.transform")
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let m: Vec<f64> =
+        ts["root"]["transform"].as_array().expect("root.transform").iter().map(|v| v.as_f64().unwrap()).collect();
     assert_eq!(m.len(), 16);
     assert_eq!([m[3], m[7], m[11], m[15]], [0.0, 0.0, 0.0, 1.0]);
     [0, 1, 2].map(|r| m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r])
@@ -90,7 +86,8 @@ fn the_tileset_is_not_culled_while_it_is_bigger_than_a_pixel() {
     for name in ["dfw_texas_srtm3.tif", "kilauea_crop_i16.bt"] {
         let (_tmp, out, _) = build_ok(&fixture(name), 1.0);
         let ts = tileset(&out);
-        let b: Vec<f64> = ts["root"]["boundingVolume"]["box"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let b: Vec<f64> =
+            ts["root"]["boundingVolume"]["box"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         let diagonal = 2.0 * (b[3].powi(2) + b[7].powi(2) + b[11].powi(2)).sqrt();
         let ge = ts["geometricError"].as_f64().unwrap();
         assert!(ge >= diagonal * (1.0 - 1e-9), "{name}: geometricError {ge} < box diagonal {diagonal}");

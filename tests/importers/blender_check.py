@@ -74,8 +74,8 @@ def base_colour_image(obj):
     if not obj.material_slots or obj.material_slots[0].material is None:
         return None, "no material"
     mat = obj.material_slots[0].material
-    if not mat.use_nodes:
-        return None, f"material {mat.name} uses no nodes"
+    if mat.node_tree is None:
+        return None, f"material {mat.name} has no node tree"
     bsdf = next((n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None)
     if bsdf is None:
         return None, f"material {mat.name} has no Principled BSDF"

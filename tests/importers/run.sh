@@ -6,33 +6,38 @@
 # builds a georeferenced, textured, skirted fixture with the terrachunk binary,
 # runs the three checkers and exits non-zero if any of them finds a mismatch.
 #
-#   tests/importers/run.sh [--compress none|quantize|meshopt] [--dem DEM] [--bin TERRACHUNK]
+#   tests/importers/run.sh [--compress none|quantize|meshopt] [--dem DEM]... [--bin TERRACHUNK]
 #                          [--screenshots DIR] [--has-nodata]
 #
-# --compress is passed to `terrachunk build` (default none: not passed at all,
-# so this runs on a binary that predates the option); --bin defaults to the
-# debug binary `cargo test` builds; --screenshots writes blender_chunk.png and
-# cesium.png there (docs/ for the README), else into the scratch directory.
+# By default two fixtures: Mount St Helens (UTM 10N on NAD27, 4 levels) and
+# Dallas–Fort Worth (SRTM 3″ in degrees, 3 levels), both textured with the
+# generated colour map and skirted, so both placement paths (projected and
+# geographic) reach CesiumJS. --compress is passed to `terrachunk build`
+# (default none: not passed at all, so this runs on a binary that predates
+# the option); --bin defaults to the debug binary `cargo test` builds;
+# --screenshots writes the first fixture's blender_chunk.png and cesium.png
+# there (docs/ for the README), else into the scratch directory.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(cd "$here/../.." && pwd)"
 cd "$repo"
 
 compress=none
-dem=fixtures/dfw_texas_srtm3.tif
+dems=()
 bin=""
 shots=""
 nodata=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --compress) compress="$2"; shift 2 ;;
-    --dem) dem="$2"; shift 2 ;;
+    --dem) dems+=("$2"); shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
     --screenshots) shots="$2"; shift 2 ;;
     --has-nodata) nodata=(--has-nodata); shift ;;
     *) echo "run.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
+[ ${#dems[@]} -gt 0 ] || dems=(fixtures/mount_st_helens_30m.tif fixtures/dfw_texas_srtm3.tif)
 
 t0=$SECONDS
 stamp() { echo "importers: $1 ($((SECONDS - t0)) s)"; }
@@ -51,28 +56,40 @@ python="${PYTHON:-python3.11}"
 (cd "$here" && npm ci --no-audit --no-fund --loglevel=error)
 stamp "tools installed: $("${CHROMIUM:-/usr/bin/chromium}" --version 2>/dev/null | head -1), $("$work/venv/bin/python" --version)"
 
-# ---- The tileset
+# ---- The tilesets, and the checkers on each: every checker runs even when
+# one before it failed
 if [ -z "$bin" ]; then
   bin="${CARGO_TARGET_DIR:-$repo/target}/debug/terrachunk"
   [ -x "$bin" ] || cargo build --quiet
 fi
-build_args=(build "$dem" -o "$work/out")
-[ "$compress" != none ] && build_args+=(--compress "$compress")
-"$bin" "${build_args[@]}" >"$work/build.log" 2>&1 || { cat "$work/build.log"; exit 1; }
-stamp "built $dem (compress $compress) with $bin"
-
-# ---- The checkers: each runs even when one before it failed
 status=0
 run() {
   local name="$1"; shift
   if "$@"; then stamp "$name passed"; else stamp "$name FAILED"; status=1; fi
 }
-run blender "$work/venv/bin/python" "$here/blender_check.py" "$work/out" --render "$shots/blender_chunk.png"
-run meshlab "$work/venv/bin/python" "$here/meshlab_check.py" "$work/out" "${nodata[@]}"
-run cesium node "$here/cesium_check.mjs" "$work/out" --screenshot "$shots/cesium.png" --close-shot "$work/cesium_close.png"
+n=0
+for dem in "${dems[@]}"; do
+  out="$work/out$n"
+  build_args=(build "$dem" -o "$out")
+  [ "$compress" != none ] && build_args+=(--compress "$compress")
+  if ! "$bin" "${build_args[@]}" >"$work/build$n.log" 2>&1; then
+    cat "$work/build$n.log"
+    stamp "build of $dem FAILED"
+    status=1
+    continue
+  fi
+  stamp "built $dem (compress $compress) with $bin"
+  dir="$shots"
+  [ $n -eq 0 ] || dir="$work/shots$n"
+  mkdir -p "$dir"
+  run "blender ($dem)" "$work/venv/bin/python" "$here/blender_check.py" "$out" --render "$dir/blender_chunk.png"
+  run "meshlab ($dem)" "$work/venv/bin/python" "$here/meshlab_check.py" "$out" "${nodata[@]}"
+  run "cesium ($dem)" node "$here/cesium_check.mjs" "$out" --screenshot "$dir/cesium.png" --close-shot "$work/cesium_close$n.png"
+  n=$((n + 1))
+done
 if [ $status -ne 0 ]; then
   stamp "importer checks FAILED (compress $compress)"
 else
-  stamp "importer checks passed (compress $compress)"
+  stamp "importer checks passed on ${#dems[@]} fixtures (compress $compress)"
 fi
 exit $status
