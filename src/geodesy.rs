@@ -413,7 +413,8 @@ mod tests {
     // [+south] +datum=WGS84" and its get_factors), which implements the same
     // Krüger series ("etmerc"); PROJ's own tests hold it to a few nm.
     // (lat, lon, zone, north, easting, northing, convergence °, scale)
-    const UTM_POINTS: [(f64, f64, u32, bool, f64, f64, f64, f64); 4] = [
+    type UtmPoint = (f64, f64, u32, bool, f64, f64, f64, f64);
+    const UTM_POINTS: [UtmPoint; 4] = [
         (
             46.2,
             -122.19,
