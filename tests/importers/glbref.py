@@ -166,12 +166,14 @@ def to_z_up(p):
     return np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
 
 
-def parent_surface_error(child_xz_y, parent):
+def parent_surface_error(points, parent, r=0.0):
     """For world points (x, y, z) of a child chunk, the vertical distance to
-    the parent chunk's surface at (x, z): the parent's surface triangles are
-    searched for the ones containing (x, z) (within a rounding margin) and
-    the smallest |y − interpolated height| over them is kept (a point on a
-    shared edge or a near-vertical sliver may lie in several). Returns an
+    the parent chunk's surface at (x, z): the parent's surface triangles
+    containing (x, z) are searched and the smallest |y − interpolated height|
+    over them is kept (a point on a shared edge or a near-vertical sliver may
+    lie in several). With `r` > 0 (quantized positions: either file may have
+    moved a vertex up to r horizontally), a triangle within r of (x, z)
+    counts too, and its height may move by r times its slope. Returns an
     array of distances (inf where no parent triangle holds the point)."""
     surf = parent.parts["surface"]
     tri = surf["world"][surf["indices"]]  # T × 3 × 3
@@ -180,11 +182,17 @@ def parent_surface_error(child_xz_y, parent):
     cx, cz = tri[:, 2, 0], tri[:, 2, 2]
     det = (bz - cz) * (ax - cx) + (cx - bx) * (az - cz)
     keep = np.abs(det) > 0
+    safe = np.where(keep, det, 1.0)
+    # Plane slope |∇h| of each triangle (height = l1·ha + l2·hb + l3·hc).
+    ha, hb, hc = tri[:, 0, 1], tri[:, 1, 1], tri[:, 2, 1]
+    gx = ((bz - cz) * (ha - hc) + (cz - az) * (hb - hc)) / safe
+    gz = ((cx - bx) * (ha - hc) + (ax - cx) * (hb - hc)) / safe
+    slope = np.hypot(gx, gz)
     lo = np.minimum(np.minimum(ax, bx), cx), np.minimum(np.minimum(az, bz), cz)
     hi = np.maximum(np.maximum(ax, bx), cx), np.maximum(np.maximum(az, bz), cz)
-    out = np.full(len(child_xz_y), np.inf)
-    margin = 1e-3
-    for k, (x, y, z) in enumerate(child_xz_y):
+    out = np.full(len(points), np.inf)
+    margin = 1e-3 + r
+    for k, (x, y, z) in enumerate(points):
         cand = keep & (lo[0] - margin <= x) & (x <= hi[0] + margin) & (lo[1] - margin <= z) & (z <= hi[1] + margin)
         if not cand.any():
             continue
@@ -193,12 +201,36 @@ def parent_surface_error(child_xz_y, parent):
         l2 = ((cz[cand] - az[cand]) * (x - cx[cand]) + (ax[cand] - cx[cand]) * (z - cz[cand])) / d
         l3 = 1.0 - l1 - l2
         inside = (l1 >= -1e-6) & (l2 >= -1e-6) & (l3 >= -1e-6)
-        if not inside.any():
+        if r > 0:
+            # Horizontal distance to each candidate triangle (0 inside).
+            t = tri[cand]
+            dist = np.where(inside, 0.0, np.inf)
+            for i, j in ((0, 1), (1, 2), (2, 0)):
+                px, pz = t[:, i, 0], t[:, i, 2]
+                ex, ez = t[:, j, 0] - px, t[:, j, 2] - pz
+                u = np.clip(((x - px) * ex + (z - pz) * ez) / np.maximum(ex * ex + ez * ez, 1e-300), 0.0, 1.0)
+                dist = np.minimum(dist, np.hypot(x - px - u * ex, z - pz - u * ez))
+            near = dist <= r
+        else:
+            near = inside
+        if not near.any():
             continue
-        t = tri[cand][inside]
-        h = l1[inside] * t[:, 0, 1] + l2[inside] * t[:, 1, 1] + l3[inside] * t[:, 2, 1]
-        out[k] = np.min(np.abs(h - y))
+        t = tri[cand][near]
+        h = l1[near] * t[:, 0, 1] + l2[near] * t[:, 1, 1] + l3[near] * t[:, 2, 1]
+        out[k] = np.min(np.maximum(np.abs(h - y) - r * slope[cand][near], 0.0))
     return out
+
+
+def quantum(chunk):
+    """(horizontal, vertical) size of one POSITION step, metres: 0 for f32
+    positions, the node scale for integer ones (KHR_mesh_quantization,
+    unnormalised), scale / (2^bits − 1) for normalised ones."""
+    acc = chunk.doc["accessors"][chunk.mesh["primitives"][0]["attributes"]["POSITION"]]
+    ct = acc["componentType"]
+    if ct == 5126:
+        return 0.0, 0.0
+    step = chunk.scale / (NORM[COMPONENT[ct]] if acc.get("normalized") else 1.0)
+    return float(max(step[0], step[2])), float(step[1])
 
 
 def pick_chunks(tileset_dir):
