@@ -151,17 +151,22 @@ try {
   await page.waitForFunction(() => window.tc !== undefined, null, { timeout: 60_000 });
 
   const settle = async (label) => {
-    // Loaded, nothing pending, for 10 frames in a row.
-    let calm = 0;
+    // Loaded and nothing pending over 10 rendered frames in a row, counted
+    // in frames, not wall time: under load a SwiftShader frame can take
+    // longer than a poll, and the first status after a camera move still
+    // describes the old view.
     const t0 = Date.now();
-    while (calm < 10) {
+    const start = (await page.evaluate(() => window.tc.status())).frames;
+    let calmSince = start;
+    for (;;) {
       const s = await page.evaluate(() => window.tc.status());
-      calm = s.tilesLoaded && s.pending === 0 && s.processing === 0 ? calm + 1 : 0;
+      if (!(s.tilesLoaded && s.pending === 0 && s.processing === 0)) calmSince = s.frames;
+      else if (s.frames - calmSince >= 10 && s.frames - start >= 10) return;
       if (Date.now() - t0 > 120_000) {
         fail(`${label}: tiles still loading after 120 s (${JSON.stringify(s)})`);
         return;
       }
-      await page.waitForTimeout(100);
+      await page.waitForTimeout(50);
     }
   };
 
