@@ -12,6 +12,7 @@ pub mod bench;
 pub mod chunk;
 pub mod config;
 pub mod dem;
+pub mod geodesy;
 pub mod heightfield;
 pub mod mesh;
 pub mod morph;

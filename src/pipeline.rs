@@ -17,6 +17,7 @@ use serde::Serialize;
 use crate::chunk::{Chunk, Part};
 use crate::config::{Compress, Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
+use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
@@ -704,6 +705,7 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
         delta_m: tree.delta_m.clone(),
         source: opts.inputs.iter().map(|p| p.display().to_string()).collect(),
         georef: hf.georef.clone(),
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m),
         morph: MorphConvention {
             target: "parent".into(),
             delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \

@@ -7,5 +7,6 @@ mod compress;
 mod dem;
 mod hard_cases;
 mod pipeline;
+mod placement;
 mod properties;
 mod texture;

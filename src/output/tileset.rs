@@ -3,7 +3,11 @@
 //! glTF content is y-up; 3D Tiles is z-up and rotates y-up glTF by +90° about
 //! x when loading it (3D Tiles 1.1, "glTF transforms"), so a world point
 //! (x, y, z) of a chunk sits at (x, −z, y) in tileset coordinates: east,
-//! north, up. Bounding boxes are given in that frame. What 3D Tiles does not
+//! north, up. Bounding boxes are given in that frame. For a georeferenced
+//! grid whose CRS `geodesy` can invert, the root carries a `transform` that
+//! puts that frame on the WGS 84 globe (the east-north-up frame at the grid
+//! centre; `extras.terrachunk.placement` says where and how); other grids
+//! have none and stay in their local frame. What 3D Tiles does not
 //! carry (levels, morph, skirts, τ_max, texture sizing) goes into `extras.terrachunk`, whose
 //! shape is the types below and whose JSON Schemas in `schemas/` are
 //! generated from them.
@@ -12,6 +16,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use crate::geodesy::Placement;
 use crate::heightfield::Georef;
 use crate::quadtree::{ChunkKey, ChunkTree};
 use crate::texture::TextureExtras;
@@ -40,6 +45,11 @@ pub struct TilesetExtras {
     pub source: Vec<String>,
     /// Georeference of the source, and the local tangent plane if geographic.
     pub georef: Georef,
+    /// Where the root `transform` puts the grid on the WGS 84 globe (absent
+    /// when the CRS is unknown or not one terrachunk can invert; the
+    /// tileset then has no transform).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<Placement>,
     /// How to read the morph targets.
     pub morph: MorphConvention,
     /// How deep the skirts hang.
@@ -146,28 +156,39 @@ pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetEx
     }
     let tops: Vec<(Value, [f64; 3], [f64; 3])> =
         tree.roots().into_iter().filter_map(find).map(|r| tile(tree, r, &find)).collect();
-    let delta0 = tree.delta_m[0];
+    // The error of drawing nothing at all is the whole terrain, not a level's
+    // δ: 3D Tiles clients skip a tileset (or stop at a content-less tile)
+    // whose error is below their bound on screen, so a terrain tileset
+    // claiming 4·δ(0) vanished a few kilometres away in CesiumJS. The box's
+    // diagonal keeps it drawn until the whole tileset is smaller than the
+    // bound in pixels.
+    let (lo, hi) = tops.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), (_, l, h)| {
+        for a in 0..3 {
+            lo[a] = lo[a].min(l[a]);
+            hi[a] = hi[a].max(h[a]);
+        }
+        (lo, hi)
+    });
+    let whole = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
     let root = if tops.len() == 1 {
         tops.into_iter().next().expect("one top").0
     } else {
-        // A non-square grid: a content-less root over its near-square cells.
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for (_, l, h) in &tops {
-            for a in 0..3 {
-                lo[a] = lo[a].min(l[a]);
-                hi[a] = hi[a].max(h[a]);
-            }
-        }
+        // A non-square grid: a content-less root over its near-square cells
+        // (it must always refine into them: see `whole`).
         json!({
             "boundingVolume": {"box": tiles_box(lo, hi)},
-            "geometricError": 2.0 * delta0,
+            "geometricError": whole.max(2.0 * tree.delta_m[0]),
             "refine": "REPLACE",
             "children": tops.into_iter().map(|t| t.0).collect::<Vec<_>>(),
         })
     };
+    let mut root = root;
+    if let Some(p) = &extras.placement {
+        root["transform"] = json!(p.transform());
+    }
     json!({
         "asset": {"version": "1.1", "generator": extras.generator},
-        "geometricError": 4.0 * delta0,
+        "geometricError": whole.max(4.0 * tree.delta_m[0]),
         "root": root,
         "extras": {"terrachunk": extras},
     })

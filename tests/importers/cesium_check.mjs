@@ -1,0 +1,225 @@
+// CesiumJS on a terrachunk tileset (DESIGN.md promise 5), in Debian's
+// headless Chromium driven by playwright-core, served from 127.0.0.1 only.
+//
+//   node cesium_check.mjs TILESET_DIR [--screenshot docs/cesium.png] [--close-shot PNG]
+//
+// Loads tileset.json with Cesium3DTileset.fromUrl (no Cesium ion, no imagery,
+// no terrain: the bare WGS 84 ellipsoid), with maximumScreenSpaceError = the
+// tileset's tau_max_px, then:
+// - no tile fails to load (tileFailed), the page throws nothing, and no
+//   request leaves the loopback server;
+// - seen from afar, the tileset sits where its georeference says: the
+//   bounding sphere's centre, as a longitude/latitude, is within 2 m (and
+//   2 px on screen) of the grid centre that proj4js (an independent
+//   projection library) computes from extras.terrachunk.georef, and the
+//   north-west corner sample lands within 1 m + 0.5 % of its distance of
+//   where proj4js puts it (the tileset is planar: see src/geodesy.rs);
+// - with the camera close to a deepest-level tile, refinement reaches the
+//   deepest level (tileVisible events of the last frame, by the tiles'
+//   extras.terrachunk.level).
+// Prints a short report; exits 1 on any failure.
+
+import fs from "node:fs";
+import http from "node:http";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+
+import { chromium } from "playwright-core";
+import proj4 from "proj4";
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const args = process.argv.slice(2);
+const tilesetDir = path.resolve(args[0] ?? "");
+const opt = (name) => {
+  const i = args.indexOf(name);
+  return i >= 0 ? args[i + 1] : undefined;
+};
+const shot = opt("--screenshot");
+const closeShot = opt("--close-shot");
+const chromiumPath = process.env.CHROMIUM ?? "/usr/bin/chromium";
+if (!fs.existsSync(path.join(tilesetDir, "tileset.json"))) {
+  console.error(`usage: node cesium_check.mjs TILESET_DIR [--screenshot PNG]; no tileset.json in ${tilesetDir}`);
+  process.exit(2);
+}
+const failures = [];
+const fail = (m) => failures.push(m);
+
+// ---- What the tileset says, and where proj4js puts it -------------------
+const ts = JSON.parse(fs.readFileSync(path.join(tilesetDir, "tileset.json"), "utf8"));
+const ex = ts.extras.terrachunk;
+const deepest = Math.max(...allTiles(ts.root).map((t) => t.extras.terrachunk.level));
+
+function allTiles(t, out = []) {
+  if (t.content) out.push(t);
+  (t.children ?? []).forEach((c) => allTiles(c, out));
+  return out;
+}
+
+// proj4 definition of the source CRS, or null when there is no independent
+// expectation for it.
+function proj4Def(crs) {
+  if (crs.geographic) {
+    const e = crs.geographic.epsg;
+    return e == null || [4326, 4269, 4258].includes(e) ? "WGS84" : null;
+  }
+  const e = crs.projected?.epsg;
+  if (e == null) return null;
+  if (e >= 32601 && e <= 32660) return `+proj=utm +zone=${e - 32600} +datum=WGS84 +units=m +no_defs`;
+  if (e >= 32701 && e <= 32760) return `+proj=utm +zone=${e - 32700} +south +datum=WGS84 +units=m +no_defs`;
+  if (e >= 26901 && e <= 26923) return `+proj=utm +zone=${e - 26900} +datum=NAD83 +units=m +no_defs`;
+  // NAD27 UTM with the CONUS mean shift terrachunk also uses (its code is
+  // independent; its datum parameters are not, and NADCON would differ by metres).
+  if (e >= 26703 && e <= 26722) return `+proj=utm +zone=${e - 26700} +ellps=clrk66 +towgs84=-8,160,176,0,0,0,0 +units=m +no_defs`;
+  if (e >= 25828 && e <= 25838) return `+proj=utm +zone=${e - 25800} +ellps=GRS80 +towgs84=0,0,0 +units=m +no_defs`;
+  if ([3857, 3785, 900913, 102100, 102113].includes(e)) return "EPSG:3857";
+  return null;
+}
+
+const g = ex.georef;
+const def = proj4Def(g.crs);
+const toLonLat = def && def !== "WGS84" ? (p) => proj4(def, "WGS84", p) : (p) => p;
+const [w, h] = [ex.grid.width, ex.grid.height];
+const centreSrc = [g.origin[0] + (g.step[0] * (w - 1)) / 2, g.origin[1] + (g.step[1] * (h - 1)) / 2];
+const expectCentre = def ? toLonLat(centreSrc) : null;
+const expectCorner = def ? toLonLat(g.origin) : null;
+const placed = Array.isArray(ts.root.transform);
+
+// The deepest-level tile nearest the grid centre: the close view's target.
+const cx = ((w - 1) / 2) * ex.spacing_m[0];
+const cy = (-(h - 1) / 2) * ex.spacing_m[1];
+const target = allTiles(ts.root)
+  .filter((t) => t.extras.terrachunk.level === deepest)
+  .map((t) => [Math.hypot(t.boundingVolume.box[0] - cx, t.boundingVolume.box[1] - cy), t.extras.terrachunk])
+  .sort((a, b) => a[0] - b[0])[0][1];
+const targetKey = `${target.level}/${target.x}/${target.y}`;
+
+// ---- A loopback-only static server --------------------------------------
+const roots = {
+  "/cesium/": path.join(here, "node_modules", "cesium", "Build", "Cesium"),
+  "/tileset/": tilesetDir,
+};
+const types = { ".html": "text/html", ".js": "text/javascript", ".css": "text/css", ".json": "application/json", ".glb": "model/gltf-binary", ".png": "image/png", ".svg": "image/svg+xml", ".wasm": "application/wasm" };
+const missing = [];
+let served = 0;
+const server = http.createServer((req, res) => {
+  const url = decodeURIComponent(new URL(req.url, "http://127.0.0.1").pathname);
+  let file = null;
+  if (url === "/" || url === "/index.html") file = path.join(here, "cesium_page.html");
+  for (const [prefix, dir] of Object.entries(roots)) {
+    if (url.startsWith(prefix)) {
+      const f = path.normalize(path.join(dir, url.slice(prefix.length)));
+      if (f.startsWith(dir)) file = f;
+    }
+  }
+  if (!file || !fs.existsSync(file) || !fs.statSync(file).isFile()) {
+    missing.push(url);
+    res.writeHead(404).end();
+    return;
+  }
+  served++;
+  res.writeHead(200, { "Content-Type": types[path.extname(file)] ?? "application/octet-stream" });
+  fs.createReadStream(file).pipe(res);
+});
+await new Promise((r) => server.listen(0, "127.0.0.1", r));
+const origin = `http://127.0.0.1:${server.address().port}`;
+
+// ---- The browser ----------------------------------------------------------
+const browser = await chromium.launch({
+  executablePath: chromiumPath,
+  args: [
+    "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run",
+    "--disable-quic", "--disable-default-apps",
+  ],
+});
+const outside = [];
+const consoleErrors = [];
+let report;
+let close;
+let placement = null;
+try {
+  const page = await browser.newPage({ viewport: { width: 800, height: 500 } });
+  await page.route("**/*", (route) => {
+    const u = route.request().url();
+    if (u.startsWith(origin) || u.startsWith("data:") || u.startsWith("blob:")) return route.continue();
+    outside.push(u);
+    return route.abort();
+  });
+  page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
+  page.on("pageerror", (e) => consoleErrors.push(String(e)));
+  await page.goto(`${origin}/`);
+  await page.waitForFunction(() => window.tc !== undefined, null, { timeout: 60_000 });
+
+  const settle = async (label) => {
+    // Loaded and nothing pending over 10 rendered frames in a row, counted
+    // in frames, not wall time: under load a SwiftShader frame can take
+    // longer than a poll, and the first status after a camera move still
+    // describes the old view.
+    const t0 = Date.now();
+    const start = (await page.evaluate(() => window.tc.status())).frames;
+    let calmSince = start;
+    for (;;) {
+      const s = await page.evaluate(() => window.tc.status());
+      if (!(s.tilesLoaded && s.pending === 0 && s.processing === 0)) calmSince = s.frames;
+      else if (s.frames - calmSince >= 10 && s.frames - start >= 10) return;
+      if (Date.now() - t0 > 120_000) {
+        fail(`${label}: tiles still loading after 120 s (${JSON.stringify(s)})`);
+        return;
+      }
+      await page.waitForTimeout(50);
+    }
+  };
+
+  await page.evaluate(([u, sse]) => window.tc.load(u, sse), ["/tileset/tileset.json", ex.tau_max_px]);
+  await page.evaluate(() => window.tc.overview());
+  await settle("overview");
+  const far = await page.evaluate(() => window.tc.report());
+  if (def && placed) {
+    placement = await page.evaluate(([a, b]) => window.tc.placement(a, b, [0, 0, 0]), [expectCentre, expectCorner]);
+  }
+  if (shot) await page.screenshot({ path: shot });
+
+  close = await page.evaluate((k) => window.tc.closeTo(k), targetKey);
+  await settle("close view");
+  report = await page.evaluate(() => window.tc.report());
+  report.farVisibleByLevel = far.visibleByLevel;
+  if (closeShot) await page.screenshot({ path: closeShot });
+} finally {
+  await browser.close();
+  server.close();
+}
+
+// ---- Verdict -----------------------------------------------------------------
+const levelsShown = Object.keys(report.visibleByLevel).map(Number);
+if (report.failed.length) fail(`${report.failed.length} tiles failed to load: ${report.failed.slice(0, 3).join("; ")}`);
+if (report.errors.length) fail(`page errors: ${report.errors.slice(0, 3).join("; ")}`);
+if (consoleErrors.length) fail(`console errors: ${consoleErrors.slice(0, 3).join("; ")}`);
+if (outside.length) fail(`${outside.length} requests tried to leave 127.0.0.1: ${outside.slice(0, 3).join(", ")}`);
+if (missing.length) fail(`${missing.length} requests not found: ${missing.slice(0, 3).join(", ")}`);
+if (!levelsShown.includes(deepest)) fail(`close to ${targetKey}, the deepest level shown is ${Math.max(...levelsShown)}, not ${deepest}`);
+if (!report.visible.includes(targetKey)) fail(`close view does not show its target ${targetKey}`);
+if (def && !placed) fail(`the georeference (${JSON.stringify(g.crs)}) can be placed, but tileset.json has no root transform`);
+if (!def && placed) console.log(`cesium: root transform present, but no independent proj4 expectation for ${JSON.stringify(g.crs)}`);
+if (placement) {
+  const cornerDist = Math.hypot(cx, cy);
+  if (!(placement.centreErrorM <= 2)) fail(`bounding sphere centre ${placement.centreErrorM.toFixed(3)} m from the grid centre`);
+  if (!(placement.centreErrorPx <= 2)) fail(`bounding sphere centre ${placement.centreErrorPx?.toFixed(2)} px from the grid centre on screen`);
+  if (!(placement.cornerErrorM <= 1 + 0.005 * cornerDist)) fail(`north-west corner ${placement.cornerErrorM.toFixed(2)} m from where proj4js puts it`);
+}
+
+const fmt = (o) => Object.entries(o).map(([l, n]) => `L${l}:${n}`).join(" ");
+const version = JSON.parse(fs.readFileSync(path.join(here, "node_modules", "cesium", "package.json"), "utf8")).version;
+console.log(`cesium ${version} in ${(await browser.version?.()) ?? "chromium"}, tileset ${ex.source.join(",")} (${deepest + 1} levels, tau ${ex.tau_max_px} px)`);
+console.log(`cesium tiles loaded by level ${fmt(report.loadedByLevel)}; overview shows ${fmt(report.farVisibleByLevel)}`);
+console.log(`cesium close to ${targetKey} (range ${close.range.toFixed(0)} m, refinement needs < ${close.dMax.toFixed(0)} m): shows ${fmt(report.visibleByLevel)}; ${report.failed.length} tile failures, ${served} files served, ${outside.length} outside requests`);
+if (placement) {
+  console.log(
+    `cesium placement: sphere centre lon/lat ${placement.centre[0].toFixed(7)}, ${placement.centre[1].toFixed(7)} vs proj4js ${expectCentre[0].toFixed(7)}, ${expectCentre[1].toFixed(7)}: ` +
+      `${placement.centreErrorM.toFixed(3)} m, ${placement.centreErrorPx.toFixed(2)} px; NW corner ${placement.cornerErrorM.toFixed(3)} m off at ${(Math.hypot(cx, cy) / 1000).toFixed(1)} km from the centre`,
+  );
+} else {
+  console.log(`cesium placement: not checked (${placed ? "no proj4 expectation" : "no root transform"} for ${JSON.stringify(g.crs)})`);
+}
+for (const f of failures) console.log(`cesium FAIL ${f}`);
+console.log(`cesium: ${failures.length} failures`);
+process.exit(failures.length ? 1 : 0);
