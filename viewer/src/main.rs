@@ -265,6 +265,7 @@ impl App {
         let config = wgpu::SurfaceConfiguration {
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
             format,
+            color_space: wgpu::SurfaceColorSpace::Auto,
             width: size.width.max(1),
             height: size.height.max(1),
             present_mode: wgpu::PresentMode::AutoVsync,
@@ -328,7 +329,7 @@ impl App {
         let view = frame.texture.create_view(&wgpu::TextureViewDescriptor::default());
         let size = [s.config.width, s.config.height];
         let st = s.viewer.frame(&s.cam, size, Target::Window(&view, &s.depth));
-        frame.present();
+        s.viewer.renderer.queue.present(frame);
         if (now - s.hud_at).as_secs_f64() > 0.5 {
             s.hud_at = now;
             let line = hud(&st, s.viewer.opts.tau_px);

@@ -127,6 +127,7 @@ impl Renderer {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
             compatible_surface: surface,
+            ..Default::default()
         }))
         .map_err(|e| {
             anyhow!(
@@ -139,7 +140,7 @@ impl Renderer {
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("terrachunk-view"),
             required_features: wgpu::Features::empty(),
-            required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
+            required_limits: adapter.limits(),
             ..Default::default()
         }))
         .context("requesting a device")?;

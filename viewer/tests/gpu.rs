@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use terrachunk::config::Config;
-use terrachunk::lod::{self, MorphSchedule};
+use terrachunk::lod::MorphSchedule;
 use terrachunk::pipeline::{BuildOptions, build};
 use terrachunk::texture::TextureSource;
 use terrachunk_view::camera::Camera;
@@ -391,7 +391,7 @@ fn true_screen_error_stays_within_tau() {
                     let (Some(a), Some(b)) = (c.project(w, SIZE), c.project([w[0], h, w[2]], SIZE)) else { continue };
                     let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
                     if d > worst.0 {
-                        worst = (d, name);
+                        worst = (d, name.as_str());
                     }
                 }
             }
@@ -420,5 +420,4 @@ fn true_screen_error_stays_within_tau() {
             );
         }
     }
-    let _ = lod::screen_k(1.0, 1.0);
 }
