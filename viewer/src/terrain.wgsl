@@ -38,14 +38,7 @@ fn place(pos: vec3<f32>, morph_dy: f32) -> vec3<f32> {
     return pos + vec3<f32>(0.0, chunk.origin.w * morph_dy, 0.0) + chunk.origin.xyz;
 }
 
-@vertex
-fn vs_main(
-    @location(0) pos: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) morph_dy: f32,
-    @location(4) role: f32,
-) -> VOut {
+fn vertex(pos: vec3<f32>, normal: vec3<f32>, uv: vec2<f32>, morph_dy: f32, role: f32) -> VOut {
     var out: VOut;
     let p = place(pos, morph_dy);
     out.clip = frame.view_proj * vec4<f32>(p, 1.0);
@@ -57,6 +50,17 @@ fn vs_main(
 }
 
 @vertex
+fn vs_main(
+    @location(0) pos: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+    @location(3) morph_dy: f32,
+    @location(4) role: f32,
+) -> VOut {
+    return vertex(pos, normal, uv, morph_dy, role);
+}
+
+@vertex
 fn vs_wire(
     @location(0) pos: vec3<f32>,
     @location(1) normal: vec3<f32>,
@@ -64,7 +68,7 @@ fn vs_wire(
     @location(3) morph_dy: f32,
     @location(4) role: f32,
 ) -> VOut {
-    var out = vs_main(pos, normal, uv, morph_dy, role);
+    var out = vertex(pos, normal, uv, morph_dy, role);
     // Reversed Z: pull the line toward the eye so the surface does not hide it.
     out.clip.z = out.clip.z + frame.flags.z * out.clip.w;
     return out;

@@ -309,17 +309,21 @@ impl Viewer {
     pub fn settle(&mut self, cam: &Camera, size: [u32; 2]) -> Result<Selection> {
         loop {
             let (sel, uploaded) = self.prepare(cam, size);
-            let waiting = self.pager.pending() > 0 || !self.pager.ready().is_empty();
-            if sel.requests.is_empty() || (uploaded == 0 && !waiting) {
+            if sel.requests.is_empty() {
                 return Ok(sel);
             }
-            if uploaded == 0 && self.pager.pending() > 0 && !self.pager.wait(Duration::from_secs(60)) {
-                anyhow::bail!("chunk loads did not finish within a minute");
+            if uploaded > 0 {
+                continue;
             }
-            if uploaded == 0 && self.pager.pending() == 0 && !self.pager.ready().is_empty() {
-                // Decoded but over budget: the cut stays as it is.
-                return Ok(sel);
+            if self.pager.pending() > 0 {
+                if !self.pager.wait(Duration::from_secs(60)) {
+                    anyhow::bail!("chunk loads did not finish within a minute");
+                }
+                continue;
             }
+            // Nothing in flight and nothing fits (budget) or loads failed:
+            // the cut stays as it is.
+            return Ok(sel);
         }
     }
 
