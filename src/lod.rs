@@ -245,8 +245,10 @@ pub struct Selection {
     /// of the chunk that waits for them; infinite for a missing root). Each
     /// node appears once; highest priority first.
     pub requests: Vec<(usize, f64)>,
-    /// Every resident node the traversal passed through (drawn or split):
-    /// a cache must keep these, or the cut above the drawn chunks breaks.
+    /// Every resident node the traversal passed through (drawn or split),
+    /// and the resident children of a chunk that waits for its others: a
+    /// cache must keep these, or the cut above the drawn chunks breaks (or
+    /// siblings evict each other for ever).
     pub touched: Vec<usize>,
 }
 
@@ -280,7 +282,10 @@ pub fn select(
         if rho > view.tau_px && !node.children.is_empty() {
             let mut all = true;
             for &c in &node.children {
-                if !resident(c) {
+                if resident(c) {
+                    // Kept too: evicting one sibling to load another never ends.
+                    sel.touched.push(c);
+                } else {
                     all = false;
                     sel.requests.push((c, rho));
                 }
@@ -396,7 +401,12 @@ mod tests {
         assert!(!sel.draws[0].within_tau);
         assert_eq!(sel.draws[0].weight, 0.0, "a chunk above τ shows its own shape");
         assert_eq!(sel.requests, vec![(missing, sel.draws[0].rho)]);
-        assert_eq!(sel.touched, vec![0]);
+        let mut touched = sel.touched.clone();
+        touched.sort();
+        let mut want = vec![0];
+        want.extend(tree.nodes[0].children.iter().copied().filter(|&c| c != missing));
+        want.sort();
+        assert_eq!(touched, want, "the root and its resident children are kept");
         // Nothing resident: the root is requested first, nothing drawn.
         let sel = select(&tree, &v, |_| false, |_| true);
         assert!(sel.draws.is_empty());

@@ -28,8 +28,10 @@ const MAGENTA: [f64; 3] = [1.0, 0.0, 1.0];
 struct Fixture {
     _tmp: tempfile::TempDir,
     dir: PathBuf,
-    /// Full-detail heights at every DEM sample, from the leaves (NaN: hole).
+    /// The full-detail surface, from the leaves.
     reference: Heights,
+    /// Where the DEM has data (row-major): δ bounds the error there only.
+    valid: Vec<bool>,
 }
 
 fn fixture() -> MutexGuard<'static, Fixture> {
@@ -38,6 +40,8 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("helens");
         let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/mount_st_helens_30m.tif");
+        let hf = terrachunk::dem::load(std::slice::from_ref(&dem), &Default::default()).unwrap();
+        let valid = hf.heights.iter().map(|h| h.is_finite()).collect();
         build(&BuildOptions {
             inputs: vec![dem],
             out: dir.clone(),
@@ -48,7 +52,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         })
         .unwrap();
         let reference = Heights::from_leaves(&Tileset::open(&dir).unwrap());
-        Mutex::new(Fixture { _tmp: tmp, dir, reference })
+        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid })
     })
     .lock()
     .unwrap_or_else(|e| e.into_inner())
@@ -66,77 +70,100 @@ fn viewer(dir: &Path, tau: f64) -> Viewer {
     Viewer::open(dir, renderer, Some(o)).unwrap()
 }
 
-/// Heights of the full-detail surface at the DEM samples.
+/// The full-detail surface (every leaf's surface triangles, world f64),
+/// with a bucket grid over the DEM cells for point location.
 struct Heights {
     w: usize,
     h: usize,
     s: [f64; 2],
-    y: Vec<f64>,
+    tris: Vec<[[f64; 3]; 3]>,
+    buckets: Vec<Vec<u32>>,
+    max: f64,
 }
 
 impl Heights {
-    /// Rasterises every leaf's surface triangles at the sample positions.
     fn from_leaves(ts: &Tileset) -> Self {
-        let (w, h) = (ts.grid[0] as usize, ts.grid[1] as usize);
+        let leaves: Vec<(usize, f64)> = ts.tree.leaves().into_iter().map(|n| (n, 0.0)).collect();
+        Self::from_chunks(ts, &leaves)
+    }
+
+    /// The surface of `chunks`, each morphed by its weight toward the parent.
+    fn from_chunks(ts: &Tileset, chunks: &[(usize, f64)]) -> Self {
+        let (w, h) = (ts.grid[0] as usize - 1, ts.grid[1] as usize - 1);
         let s = ts.spacing_m;
-        let mut y = vec![f64::NAN; w * h];
-        for leaf in ts.tree.leaves() {
-            let m = load_chunk(&ts.chunk_path(leaf)).unwrap();
+        let mut tris = Vec::new();
+        let mut buckets = vec![Vec::new(); w * h];
+        let mut max = f64::NEG_INFINITY;
+        for &(node, weight) in chunks {
+            let m = load_chunk(&ts.chunk_path(node)).unwrap();
             let world = |i: u32| {
-                let v = m.vertices[i as usize].pos;
-                [0, 1, 2].map(|a| m.translation[a] + f64::from(v[a]))
+                let v = &m.vertices[i as usize];
+                let y = f64::from(v.pos[1]) + weight * f64::from(v.morph_dy);
+                [m.translation[0] + f64::from(v.pos[0]), m.translation[1] + y, m.translation[2] + f64::from(v.pos[2])]
             };
             for t in m.indices[..m.surface_indices as usize].chunks_exact(3) {
                 let p = [world(t[0]), world(t[1]), world(t[2])];
-                let (gx, gz) = (p.map(|q| q[0] / s[0]), p.map(|q| q[2] / s[1]));
-                let det = (gx[1] - gx[0]) * (gz[2] - gz[0]) - (gx[2] - gx[0]) * (gz[1] - gz[0]);
-                if det.abs() < 1e-12 {
-                    continue;
-                }
-                let j0 = gx.iter().copied().fold(f64::INFINITY, f64::min).ceil().max(0.0) as usize;
-                let j1 = (gx.iter().copied().fold(f64::NEG_INFINITY, f64::max).floor() as usize).min(w - 1);
-                let i0 = gz.iter().copied().fold(f64::INFINITY, f64::min).ceil().max(0.0) as usize;
-                let i1 = (gz.iter().copied().fold(f64::NEG_INFINITY, f64::max).floor() as usize).min(h - 1);
+                let id = tris.len() as u32;
+                let cell = |v: f64, a: usize, n: usize| ((v / s[a]).floor().max(0.0) as usize).min(n - 1);
+                let (j0, j1) = (cell(p.iter().map(|q| q[0]).fold(f64::INFINITY, f64::min), 0, w), cell(p.iter().map(|q| q[0]).fold(f64::NEG_INFINITY, f64::max), 0, w));
+                let (i0, i1) = (cell(p.iter().map(|q| q[2]).fold(f64::INFINITY, f64::min), 1, h), cell(p.iter().map(|q| q[2]).fold(f64::NEG_INFINITY, f64::max), 1, h));
                 for i in i0..=i1 {
                     for j in j0..=j1 {
-                        let (x, z) = (j as f64, i as f64);
-                        let b1 = ((x - gx[0]) * (gz[2] - gz[0]) - (gx[2] - gx[0]) * (z - gz[0])) / det;
-                        let b2 = ((gx[1] - gx[0]) * (z - gz[0]) - (x - gx[0]) * (gz[1] - gz[0])) / det;
-                        let b0 = 1.0 - b1 - b2;
-                        if b0 >= -1e-9 && b1 >= -1e-9 && b2 >= -1e-9 {
-                            y[i * w + j] = b0 * p[0][1] + b1 * p[1][1] + b2 * p[2][1];
-                        }
+                        buckets[i * w + j].push(id);
                     }
                 }
+                max = p.iter().map(|q| q[1]).fold(max, f64::max);
+                tris.push(p);
             }
         }
-        Heights { w, h, s, y }
+        Heights { w, h, s, tris, buckets, max }
     }
 
-    /// Bilinear height at world (x, z), if all four samples are covered.
+    /// Height of the full-detail surface at world (x, z), if it covers it.
     fn at(&self, x: f64, z: f64) -> Option<f64> {
-        let (gx, gz) = (x / self.s[0], z / self.s[1]);
-        if gx < 0.0 || gz < 0.0 {
+        let (j, i) = ((x / self.s[0]).floor(), (z / self.s[1]).floor());
+        if j < 0.0 || i < 0.0 {
             return None;
         }
-        let (j, i) = ((gx.floor() as usize).min(self.w - 2), (gz.floor() as usize).min(self.h - 2));
-        let (fx, fz) = (gx - j as f64, gz - i as f64);
-        if fx > 1.0 + 1e-9 || fz > 1.0 + 1e-9 {
-            return None;
+        let (j, i) = ((j as usize).min(self.w - 1), (i as usize).min(self.h - 1));
+        let mut best: Option<(f64, f64)> = None;
+        for &t in &self.buckets[i * self.w + j] {
+            let p = &self.tris[t as usize];
+            let det = (p[1][0] - p[0][0]) * (p[2][2] - p[0][2]) - (p[2][0] - p[0][0]) * (p[1][2] - p[0][2]);
+            if det.abs() < 1e-12 {
+                continue;
+            }
+            let b1 = ((x - p[0][0]) * (p[2][2] - p[0][2]) - (p[2][0] - p[0][0]) * (z - p[0][2])) / det;
+            let b2 = ((p[1][0] - p[0][0]) * (z - p[0][2]) - (x - p[0][0]) * (p[1][2] - p[0][2])) / det;
+            let b0 = 1.0 - b1 - b2;
+            // The triangle the point is deepest inside (edges are shared).
+            let inside = b0.min(b1).min(b2);
+            if inside >= -1e-6 && best.is_none_or(|b| inside > b.0) {
+                best = Some((inside, b0 * p[0][1] + b1 * p[1][1] + b2 * p[2][1]));
+            }
         }
-        let g = |i: usize, j: usize| self.y[i * self.w + j];
-        let v = (1.0 - fz) * ((1.0 - fx) * g(i, j) + fx * g(i, j + 1)) + fz * ((1.0 - fx) * g(i + 1, j) + fx * g(i + 1, j + 1));
-        v.is_finite().then_some(v)
+        best.map(|b| b.1)
     }
 
     fn max(&self) -> f64 {
-        self.y.iter().copied().filter(|v| v.is_finite()).fold(f64::NEG_INFINITY, f64::max)
+        self.max
     }
 
     /// Ground height near (x, z), or the highest point where there is none.
     fn ground(&self, x: f64, z: f64) -> f64 {
         self.at(x, z).unwrap_or_else(|| self.max())
     }
+}
+
+/// Whether all four DEM samples around world (x, z) have data.
+fn valid_cell(valid: &[bool], grid: [u32; 2], s: [f64; 2], x: f64, z: f64) -> bool {
+    let (j, i) = ((x / s[0]).floor(), (z / s[1]).floor());
+    if j < 0.0 || i < 0.0 {
+        return false;
+    }
+    let (w, h) = (grid[0] as usize, grid[1] as usize);
+    let (j, i) = ((j as usize).min(w - 2), (i as usize).min(h - 2));
+    valid[i * w + j] && valid[i * w + j + 1] && valid[(i + 1) * w + j] && valid[(i + 1) * w + j + 1]
 }
 
 fn cam(eye: [f64; 3], yaw: f64, pitch: f64) -> Camera {
@@ -340,7 +367,7 @@ fn a_flythrough_never_waits_for_loads_and_stays_within_budget() {
     let mut v = viewer(&f.dir, 1.0);
     let total: u64 =
         (0..v.tileset.tree.nodes.len()).map(|n| load_chunk(&v.tileset.chunk_path(n)).unwrap().gpu_bytes()).sum();
-    v.opts.budget_bytes = total * 45 / 100;
+    v.opts.budget_bytes = total * 6 / 10;
     let t = v.renderer.targets(SIZE);
     let (lo, hi) = v.tileset.bounds;
     let ext = (hi[0] - lo[0]).max(hi[2] - lo[2]);
@@ -401,27 +428,77 @@ fn true_screen_error_stays_within_tau() {
         v.opts.schedule = schedule;
         for tau in [1.0, 3.0] {
             v.opts.tau_px = tau;
-            let mut worst: (f64, &str) = (0.0, "");
+            // At the visible DEM samples, where δ is measured (asserted), and
+            // at every pixel over cells with data (reported: between samples
+            // two triangulations of one cell may differ by more than δ).
+            let (mut worst_px, mut worst_sample): ((f64, &str), (f64, &str)) = ((0.0, ""), (0.0, ""));
             for (name, c) in &cams {
                 let sel = v.select(c, SIZE);
                 let nodes: Vec<(usize, f32)> = sel.draws.iter().map(|d| (d.node, d.weight as f32)).collect();
                 let pos = draw_capture(&mut v, &t, c, &nodes);
+                let shift = |p: [f64; 3], h: f64| -> Option<f64> {
+                    let (a, b) = (c.project(p, SIZE)?, c.project([p[0], h, p[2]], SIZE)?);
+                    Some(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt())
+                };
                 for p in &pos {
                     if p[3] != 1.0 {
                         continue; // background or skirt
                     }
                     let w = [0, 1, 2].map(|a| c.eye[a] + f64::from(p[a]));
-                    let Some(h) = f.reference.at(w[0], w[2]) else { continue };
-                    let (Some(a), Some(b)) = (c.project(w, SIZE), c.project([w[0], h, w[2]], SIZE)) else { continue };
-                    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
-                    if d > worst.0 {
-                        worst = (d, name.as_str());
+                    if !valid_cell(&f.valid, v.tileset.grid, v.tileset.spacing_m, w[0], w[2]) {
+                        continue;
+                    }
+                    if let Some(d) = f.reference.at(w[0], w[2]).and_then(|h| shift(w, h))
+                        && d > worst_px.0
+                    {
+                        worst_px = (d, name.as_str());
+                    }
+                }
+                let weights: Vec<(usize, f64)> = sel.draws.iter().map(|d| (d.node, d.weight)).collect();
+                let shown = Heights::from_chunks(&v.tileset, &weights);
+                let s = v.tileset.spacing_m;
+                for i in 0..v.tileset.grid[1] {
+                    for j in 0..v.tileset.grid[0] {
+                        if !f.valid[(i * v.tileset.grid[0] + j) as usize] {
+                            continue; // nodata: no surface is bound to anything there
+                        }
+                        let (x, z) = (f64::from(j) * s[0], f64::from(i) * s[1]);
+                        let (Some(hc), Some(hr)) = (shown.at(x, z), f.reference.at(x, z)) else { continue };
+                        let p = [x, hc, z];
+                        let Some(px) = c.project(p, SIZE) else { continue };
+                        if px[0] < 0.0 || px[1] < 0.0 || px[0] >= f64::from(SIZE[0]) || px[1] >= f64::from(SIZE[1]) {
+                            continue;
+                        }
+                        // Visible: the pixel shows this point (not something in front).
+                        let q = pos[px[1] as usize * SIZE[0] as usize + px[0] as usize];
+                        let seen = [0, 1, 2].map(|a| c.eye[a] + f64::from(q[a]));
+                        let gap = ((seen[0] - x).powi(2) + (seen[1] - hc).powi(2) + (seen[2] - z).powi(2)).sqrt();
+                        if q[3] != 1.0 || gap > s[0] {
+                            continue;
+                        }
+                        if let Some(d) = shift(p, hr)
+                            && d > worst_sample.0
+                        {
+                            worst_sample = (d, name.as_str());
+                            if std::env::var_os("TC_DEBUG").is_some() && d > tau {
+                                let dist = ((x - c.eye[0]).powi(2) + (hc - c.eye[1]).powi(2) + (z - c.eye[2]).powi(2)).sqrt();
+                                let ds: Vec<String> = sel.draws.iter().filter(|dr| { let n = &v.tileset.tree.nodes[dr.node]; n.min[0] <= x && x <= n.max[0] && n.min[2] <= z && z <= n.max[2] }).map(|dr| { let n = &v.tileset.tree.nodes[dr.node]; format!("{:?} δ {} ρ {:.3} w {:.3} D {:.1}", n.key, n.delta_m, dr.rho, dr.weight, terrachunk::lod::distance_to_box(c.eye, n.min, n.max)) }).collect();
+                                eprintln!("{name} τ {tau}: {d:.2} px at ({x},{z}) cut {hc:.2} ref {hr:.2} dist {dist:.1} px {px:?}; {ds:?}");
+                            }
+                        }
                     }
                 }
             }
-            println!("true screen error, {schedule:?} morph, τ = {tau} px: largest displacement {:.3} px ({}) over {} cameras", worst.0, worst.1, cams.len());
+            println!(
+                "true screen error, {schedule:?} morph, τ = {tau} px, {} cameras: at DEM samples {:.3} px ({}), at any pixel {:.3} px ({})",
+                cams.len(),
+                worst_sample.0,
+                worst_sample.1,
+                worst_px.0,
+                worst_px.1
+            );
             if schedule == MorphSchedule::Bounded {
-                assert!(worst.0 <= tau, "τ {tau}: {:.3} px at {}", worst.0, worst.1);
+                assert!(worst_sample.0 <= tau, "τ {tau}: {:.3} px at {}", worst_sample.0, worst_sample.1);
             }
         }
     }
