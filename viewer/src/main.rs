@@ -61,6 +61,10 @@ struct Cli {
     /// Start with fog off.
     #[arg(long)]
     no_fog: bool,
+    /// Fog density ρ_fog, 1/m (fog factor exp(−(ρ_fog·d)²)) [default: 1.5 /
+    /// the terrain's diagonal].
+    #[arg(long)]
+    fog_density: Option<f64>,
     /// Start with lighting off.
     #[arg(long)]
     no_lighting: bool,
@@ -109,6 +113,9 @@ fn options(cli: &Cli, ts: &Tileset) -> Options {
     o.budget_bytes = cli.budget_mb << 20;
     o.threads = cli.threads;
     o.look.fog = !cli.no_fog;
+    if let Some(d) = cli.fog_density {
+        o.look.fog_density = d;
+    }
     o.look.lighting = !cli.no_lighting;
     o.look.wireframe = cli.wireframe;
     o
