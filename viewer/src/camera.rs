@@ -66,7 +66,10 @@ impl Camera {
     pub fn frustum(&self, aspect: f64) -> Frustum {
         let m = self.view_proj(aspect);
         let plane = |s: f64, row: usize| -> [f64; 4] { [0, 1, 2, 3].map(|c| m[3][c] + s * m[row][c]) };
-        Frustum { eye: self.eye, planes: [plane(1.0, 0), plane(-1.0, 0), plane(1.0, 1), plane(-1.0, 1), plane(-1.0, 2)] }
+        Frustum {
+            eye: self.eye,
+            planes: [plane(1.0, 0), plane(-1.0, 0), plane(1.0, 1), plane(-1.0, 1), plane(-1.0, 2)],
+        }
     }
 }
 

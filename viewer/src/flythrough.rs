@@ -30,7 +30,8 @@ impl Flythrough {
     /// Reads a flythrough file.
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
-        let f: Flythrough = serde_json::from_str(&text).with_context(|| format!("{}: not a flythrough", path.display()))?;
+        let f: Flythrough =
+            serde_json::from_str(&text).with_context(|| format!("{}: not a flythrough", path.display()))?;
         if f.cameras.is_empty() || f.frames_per_segment == 0 {
             bail!("{}: needs at least one camera and frames_per_segment ≥ 1", path.display());
         }
@@ -46,10 +47,7 @@ impl Flythrough {
             let dyaw = (b[3] - a[3] + 540.0).rem_euclid(360.0) - 180.0;
             for i in 0..self.frames_per_segment {
                 let t = f64::from(i) / f64::from(self.frames_per_segment);
-                let mut c = [0.0; 5];
-                for k in 0..5 {
-                    c[k] = a[k] + t * (b[k] - a[k]);
-                }
+                let mut c: [f64; 5] = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
                 c[3] = a[3] + t * dyaw;
                 out.push(cam(c));
             }

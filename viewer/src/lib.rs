@@ -14,10 +14,14 @@ pub mod render;
 pub mod scene;
 pub mod viewer;
 
-/// A renderer for offscreen (headless) drawing on the first adapter wgpu
-/// finds; on a machine without a GPU that is Mesa's lavapipe, and without
-/// it this fails with the line that installs it.
+/// A renderer for offscreen (headless) drawing on the first Vulkan adapter
+/// wgpu finds; on a machine without a GPU that is Mesa's lavapipe, and
+/// without it this fails with the line that installs it. (Vulkan only, so
+/// that headless images and the tests' references come from one kind of
+/// driver; the window may also use GL.)
 pub fn headless_renderer() -> anyhow::Result<render::Renderer> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::VULKAN;
+    let instance = wgpu::Instance::new(desc);
     render::Renderer::new(&instance, None, None)
 }

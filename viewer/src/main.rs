@@ -89,7 +89,8 @@ fn parse_size(s: &str) -> Result<[u32; 2], String> {
 }
 
 fn parse_camera(s: &str) -> Result<[f64; 5], String> {
-    let v: Vec<f64> = s.split(',').map(|t| t.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    let v: Vec<f64> =
+        s.split(',').map(|t| t.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
     v.try_into().map_err(|_| "expected x,y,z,yaw,pitch".to_string())
 }
 
@@ -289,7 +290,16 @@ impl App {
         println!("terrachunk-view on {}", viewer.renderer.adapter_info);
         println!("keys: hold the right mouse button to look and fly (WASD, Q/E down/up, shift ×4);");
         println!("      arrows/PageUp/PageDown fly any time; f fog, l lighting, w wireframe, +/- τ, q quit");
-        self.state = Some(WinState { window, surface, config, depth, viewer, cam, last: Instant::now(), hud_at: Instant::now() });
+        self.state = Some(WinState {
+            window,
+            surface,
+            config,
+            depth,
+            viewer,
+            cam,
+            last: Instant::now(),
+            hud_at: Instant::now(),
+        });
         Ok(())
     }
 

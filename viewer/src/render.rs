@@ -122,7 +122,11 @@ pub struct Renderer {
 impl Renderer {
     /// A renderer on the first adapter wgpu finds (lavapipe where there is
     /// no GPU), drawing to `surface_format` (and always able to draw offscreen).
-    pub fn new(instance: &wgpu::Instance, surface: Option<&wgpu::Surface<'_>>, surface_format: Option<wgpu::TextureFormat>) -> Result<Self> {
+    pub fn new(
+        instance: &wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+        surface_format: Option<wgpu::TextureFormat>,
+    ) -> Result<Self> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,
@@ -248,7 +252,18 @@ impl Renderer {
         let (textures, has_texture) = match &mesh.texture {
             Some(m) => {
                 let levels: Vec<Vec<u8>> = m.levels.iter().map(|l| l.2.clone()).collect();
-                (texture_group(&self.device, &self.queue, &self.tex_layout, &self.sampler, m.levels[0].0, m.levels[0].1, &levels), true)
+                (
+                    texture_group(
+                        &self.device,
+                        &self.queue,
+                        &self.tex_layout,
+                        &self.sampler,
+                        m.levels[0].0,
+                        m.levels[0].1,
+                        &levels,
+                    ),
+                    true,
+                )
             }
             None => (self.white.clone(), false),
         };
@@ -371,7 +386,10 @@ impl Renderer {
                     view: p,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
                 }));
             }
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -445,7 +463,11 @@ impl Renderer {
             },
             wgpu::TexelCopyBufferInfo {
                 buffer: &buf,
-                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(size[1]) },
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row),
+                    rows_per_image: Some(size[1]),
+                },
             },
             wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 },
         );
@@ -476,42 +498,41 @@ fn texture_group(
     h: u32,
     levels: &[Vec<u8>],
 ) -> wgpu::BindGroup {
-        let tex = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("chunk texture"),
-            size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
-            mip_level_count: levels.len() as u32,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            // Stored values as they are: the targets are not sRGB either.
-            format: wgpu::TextureFormat::Rgba8Unorm,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        for (mip, px) in levels.iter().enumerate() {
-            let (mw, mh) = ((w >> mip).max(1), (h >> mip).max(1));
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &tex,
-                    mip_level: mip as u32,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                },
-                px,
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * mw), rows_per_image: Some(mh) },
-                wgpu::Extent3d { width: mw, height: mh, depth_or_array_layers: 1 },
-            );
-        }
-        let view = tex.create_view(&wgpu::TextureViewDescriptor::default());
-        device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("chunk texture"),
-            layout: layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(sampler) },
-            ],
-        })
+    let tex = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("chunk texture"),
+        size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        mip_level_count: levels.len() as u32,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        // Stored values as they are: the targets are not sRGB either.
+        format: wgpu::TextureFormat::Rgba8Unorm,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    for (mip, px) in levels.iter().enumerate() {
+        let (mw, mh) = ((w >> mip).max(1), (h >> mip).max(1));
+        queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &tex,
+                mip_level: mip as u32,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            px,
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * mw), rows_per_image: Some(mh) },
+            wgpu::Extent3d { width: mw, height: mh, depth_or_array_layers: 1 },
+        );
     }
-
+    let view = tex.create_view(&wgpu::TextureViewDescriptor::default());
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("chunk texture"),
+        layout: layout,
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(sampler) },
+        ],
+    })
+}
 
 fn chunk_buffer(device: &wgpu::Device, cap: u64) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {

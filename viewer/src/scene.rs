@@ -33,7 +33,8 @@ impl Tileset {
             serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
         let tree = LodTree::from_tileset_json(&json).with_context(|| path.display().to_string())?;
         let ex = &json["extras"]["terrachunk"];
-        let grid = [ex["grid"]["width"].as_u64().unwrap_or(0) as u32, ex["grid"]["height"].as_u64().unwrap_or(0) as u32];
+        let grid =
+            [ex["grid"]["width"].as_u64().unwrap_or(0) as u32, ex["grid"]["height"].as_u64().unwrap_or(0) as u32];
         let spacing_m = [ex["spacing_m"][0].as_f64().unwrap_or(1.0), ex["spacing_m"][1].as_f64().unwrap_or(1.0)];
         let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
         for &r in &tree.roots {
@@ -96,8 +97,7 @@ impl ChunkMesh {
     /// the texture with its mips): what the memory budget counts.
     pub fn gpu_bytes(&self) -> u64 {
         let tex: usize = self.texture.as_ref().map_or(0, |m| m.levels.iter().map(|l| l.2.len()).sum());
-        (self.vertices.len() * std::mem::size_of::<Vertex>() + (self.indices.len() + self.edges.len()) * 4 + tex)
-            as u64
+        (self.vertices.len() * std::mem::size_of::<Vertex>() + (self.indices.len() + self.edges.len()) * 4 + tex) as u64
     }
 
     /// Surface triangles.
@@ -151,14 +151,9 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
             _ => vec![0.0; pos.len()],
         };
         let base = out.vertices.len() as u32;
-        for i in 0..pos.len() {
-            out.vertices.push(Vertex {
-                pos: pos[i],
-                normal: nrm[i],
-                uv: uv[i],
-                morph_dy: dy[i],
-                role: if skirt { 1.0 } else { 0.0 },
-            });
+        let role = if skirt { 1.0 } else { 0.0 };
+        for (((&pos, &normal), &uv), &morph_dy) in pos.iter().zip(&nrm).zip(&uv).zip(&dy) {
+            out.vertices.push(Vertex { pos, normal, uv, morph_dy, role });
         }
         let idx: Vec<u32> = match reader.read_indices() {
             Some(i) => i.into_u32().map(|i| i + base).collect(),

@@ -97,8 +97,7 @@ pub struct FrameStats {
 
 impl FrameStats {
     /// The CSV header of [`FrameStats::csv_row`].
-    pub const CSV_HEADER: &'static str =
-        "frame,chunks,triangles,max_rho_px,over_tau,frame_ms,pending_loads,missing,resident_bytes,uploaded,chunks_per_level";
+    pub const CSV_HEADER: &'static str = "frame,chunks,triangles,max_rho_px,over_tau,frame_ms,pending_loads,missing,resident_bytes,uploaded,chunks_per_level";
 
     /// One CSV row.
     pub fn csv_row(&self) -> String {

@@ -105,8 +105,14 @@ impl Heights {
                 let p = [world(t[0]), world(t[1]), world(t[2])];
                 let id = tris.len() as u32;
                 let cell = |v: f64, a: usize, n: usize| ((v / s[a]).floor().max(0.0) as usize).min(n - 1);
-                let (j0, j1) = (cell(p.iter().map(|q| q[0]).fold(f64::INFINITY, f64::min), 0, w), cell(p.iter().map(|q| q[0]).fold(f64::NEG_INFINITY, f64::max), 0, w));
-                let (i0, i1) = (cell(p.iter().map(|q| q[2]).fold(f64::INFINITY, f64::min), 1, h), cell(p.iter().map(|q| q[2]).fold(f64::NEG_INFINITY, f64::max), 1, h));
+                let (j0, j1) = (
+                    cell(p.iter().map(|q| q[0]).fold(f64::INFINITY, f64::min), 0, w),
+                    cell(p.iter().map(|q| q[0]).fold(f64::NEG_INFINITY, f64::max), 0, w),
+                );
+                let (i0, i1) = (
+                    cell(p.iter().map(|q| q[2]).fold(f64::INFINITY, f64::min), 1, h),
+                    cell(p.iter().map(|q| q[2]).fold(f64::NEG_INFINITY, f64::max), 1, h),
+                );
                 for i in i0..=i1 {
                     for j in j0..=j1 {
                         buckets[i * w + j].push(id);
@@ -278,7 +284,12 @@ fn no_background_shows_through_the_terrain_from_many_cameras() {
         without_skirts += cracks(&draw_capture(&mut v, &t, c, &nodes), &full, 2).len();
         v.opts.look.skirts = true;
     }
-    println!("crack test: {} cameras at {}x{}, {mixed} with mixed levels; without skirts {without_skirts} crack pixels", cams.len(), SIZE[0], SIZE[1]);
+    println!(
+        "crack test: {} cameras at {}x{}, {mixed} with mixed levels; without skirts {without_skirts} crack pixels",
+        cams.len(),
+        SIZE[0],
+        SIZE[1]
+    );
     assert!(mixed >= cams.len() / 2, "too few cameras see several levels at once ({mixed})");
     assert!(without_skirts > 0, "no crack even without skirts: the test would not see one");
 }
@@ -301,7 +312,10 @@ fn a_chunk_morphed_fully_to_its_parent_draws_as_the_parent() {
         // Look at the parent's footprint from above and from the side.
         let c = [(node.min[0] + node.max[0]) / 2.0, node.max[1], (node.min[2] + node.max[2]) / 2.0];
         let ext = (node.max[0] - node.min[0]).max(node.max[2] - node.min[2]);
-        for camera in [cam([c[0], c[1] + ext, c[2] + 0.3 * ext], 0.0, -70.0), cam([c[0], c[1] + 0.3 * ext, c[2] + ext], 0.0, -25.0)] {
+        for camera in [
+            cam([c[0], c[1] + ext, c[2] + 0.3 * ext], 0.0, -70.0),
+            cam([c[0], c[1] + 0.3 * ext, c[2] + ext], 0.0, -25.0),
+        ] {
             let parent = draw_capture(&mut v, &t, &camera, &[(p, 0.0)]);
             let kids: Vec<(usize, f32)> = node.children.iter().map(|&k| (k, 1.0)).collect();
             let morphed = draw_capture(&mut v, &t, &camera, &kids);
@@ -318,7 +332,10 @@ fn a_chunk_morphed_fully_to_its_parent_draws_as_the_parent() {
                 }
             }
             let n = parent.len();
-            println!("morph w=1 vs parent {:?}: {differ} of {n} pixels differ in coverage, worst position gap {:.2e} of the distance", node.key, worst);
+            println!(
+                "morph w=1 vs parent {:?}: {differ} of {n} pixels differ in coverage, worst position gap {:.2e} of the distance",
+                node.key, worst
+            );
             assert!(both > n / 10, "{:?}: the chunk is barely in view", node.key);
             // Silhouette pixels may flip (different triangles rasterise the same
             // surface); interior points coincide to f32 precision.
@@ -392,7 +409,13 @@ fn a_flythrough_never_waits_for_loads_and_stays_within_budget() {
     let (mut with_pending, mut drawn) = (0, 0);
     for c in &path {
         let st = v.frame(c, SIZE, Target::Offscreen(&t));
-        assert!(st.resident_bytes <= v.opts.budget_bytes, "frame {}: {} > budget {}", st.frame, st.resident_bytes, v.opts.budget_bytes);
+        assert!(
+            st.resident_bytes <= v.opts.budget_bytes,
+            "frame {}: {} > budget {}",
+            st.frame,
+            st.resident_bytes,
+            v.opts.budget_bytes
+        );
         with_pending += usize::from(st.pending > 0);
         drawn += usize::from(st.chunks > 0);
     }
@@ -480,11 +503,6 @@ fn true_screen_error_stays_within_tau() {
                             && d > worst_sample.0
                         {
                             worst_sample = (d, name.as_str());
-                            if std::env::var_os("TC_DEBUG").is_some() && d > tau {
-                                let dist = ((x - c.eye[0]).powi(2) + (hc - c.eye[1]).powi(2) + (z - c.eye[2]).powi(2)).sqrt();
-                                let ds: Vec<String> = sel.draws.iter().filter(|dr| { let n = &v.tileset.tree.nodes[dr.node]; n.min[0] <= x && x <= n.max[0] && n.min[2] <= z && z <= n.max[2] }).map(|dr| { let n = &v.tileset.tree.nodes[dr.node]; format!("{:?} δ {} ρ {:.3} w {:.3} D {:.1}", n.key, n.delta_m, dr.rho, dr.weight, terrachunk::lod::distance_to_box(c.eye, n.min, n.max)) }).collect();
-                                eprintln!("{name} τ {tau}: {d:.2} px at ({x},{z}) cut {hc:.2} ref {hr:.2} dist {dist:.1} px {px:?}; {ds:?}");
-                            }
                         }
                     }
                 }
