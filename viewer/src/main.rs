@@ -328,13 +328,13 @@ impl App {
         ];
         for (on, dir, sign) in axes {
             if on {
-                for a in 0..3 {
-                    mv[a] += sign * dir[a] * speed;
+                for (m, d) in mv.iter_mut().zip(dir) {
+                    *m += sign * d * speed;
                 }
             }
         }
-        for a in 0..3 {
-            s.cam.eye[a] += mv[a];
+        for (e, m) in s.cam.eye.iter_mut().zip(mv) {
+            *e += m;
         }
         let frame = match s.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
