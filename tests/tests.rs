@@ -8,3 +8,4 @@ mod hard_cases;
 mod pipeline;
 mod properties;
 mod texture;
+mod viewer;
