@@ -2,7 +2,8 @@
 //!
 //! The stages, in the order [`pipeline::build`] calls them: [`dem`] (load) →
 //! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] →
-//! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`verify`]
+//! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`lod`] is what
+//! a client runs per frame (chunk selection, morph weights); [`verify`]
 //! re-checks a written tileset from its files alone; [`bench`] measures speed
 //! against error, beside other tools.
 #![forbid(unsafe_code)]
@@ -14,6 +15,7 @@ pub mod config;
 pub mod dem;
 pub mod geodesy;
 pub mod heightfield;
+pub mod lod;
 pub mod mesh;
 pub mod morph;
 pub mod output;

@@ -93,6 +93,14 @@ enum Command {
         /// A chunk file, e.g. out/tiles/0/0/0.glb.
         glb: PathBuf,
     },
+    /// Fly over a tileset in the real-time viewer: runs the `terrachunk-view`
+    /// binary (the `viewer/` crate) found next to this one or on PATH, with
+    /// the same arguments (`terrachunk view OUT --help` lists them).
+    View {
+        /// Tileset directory, then any `terrachunk-view` options.
+        #[arg(required = true, trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<std::ffi::OsString>,
+    },
     /// Speed against error: time builds over a ladder of max errors and
     /// measure each result's true error (OUT/bench.csv, bench.png, bench.svg).
     Bench(BenchArgs),
@@ -324,6 +332,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::from(1))
             }
         }
+        Command::View { args } => view(&args),
         Command::Inspect { glb } => {
             let c = match read_chunk(&glb) {
                 Ok(c) => c,
@@ -382,6 +391,27 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::from(e.exit_code() as u8))
             }
         },
+    }
+}
+
+/// Runs the sibling `terrachunk-view` binary: the viewer is its own crate so
+/// that this one builds and tests without a GPU stack.
+fn view(args: &[std::ffi::OsString]) -> anyhow::Result<ExitCode> {
+    let name = format!("terrachunk-view{}", std::env::consts::EXE_SUFFIX);
+    let sibling = std::env::current_exe().ok().and_then(|e| e.parent().map(|d| d.join(&name)));
+    let program = match &sibling {
+        Some(p) if p.is_file() => p.clone(),
+        _ => PathBuf::from(&name),
+    };
+    match std::process::Command::new(&program).args(args).status() {
+        Ok(status) => Ok(ExitCode::from(status.code().map_or(1, |c| c.clamp(0, 255) as u8))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => anyhow::bail!(
+            "`terrachunk view` needs the `{name}` binary, next to this one ({}) or on PATH: \
+             build it with `cargo build -p terrachunk-view` or install it with \
+             `cargo install --path viewer`",
+            sibling.map_or_else(|| "?".into(), |p| p.display().to_string())
+        ),
+        Err(e) => Err(anyhow::Error::new(e).context(format!("running {}", program.display()))),
     }
 }
 

@@ -10,3 +10,4 @@ mod pipeline;
 mod placement;
 mod properties;
 mod texture;
+mod viewer;

@@ -1,0 +1,226 @@
+//! What the viewer reads from disk: `tileset.json` (the chunk tree, through
+//! `terrachunk::lod`) and one `.glb` per chunk, decoded into the CPU-side
+//! mesh the GPU cache uploads. Only the output contract of DESIGN.md is
+//! assumed: chunk-local f32 positions plus an f64 node translation, y-up,
+//! primitives tagged `extras.role` "surface"/"skirt", one "parent" morph
+//! target with POSITION deltas, an optional baseColor texture.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use terrachunk::lod::LodTree;
+
+/// A tileset opened for viewing.
+pub struct Tileset {
+    /// The tileset directory.
+    pub dir: PathBuf,
+    /// The chunk tree.
+    pub tree: LodTree,
+    /// Samples per row and rows of the source grid.
+    pub grid: [u32; 2],
+    /// `[s_x, s_z]`, metres.
+    pub spacing_m: [f64; 2],
+    /// World box of the whole terrain (glTF frame), min and max.
+    pub bounds: ([f64; 3], [f64; 3]),
+}
+
+impl Tileset {
+    /// Reads `DIR/tileset.json`.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let path = dir.join("tileset.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+        let json: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        let tree = LodTree::from_tileset_json(&json).with_context(|| path.display().to_string())?;
+        let ex = &json["extras"]["terrachunk"];
+        let grid =
+            [ex["grid"]["width"].as_u64().unwrap_or(0) as u32, ex["grid"]["height"].as_u64().unwrap_or(0) as u32];
+        let spacing_m = [ex["spacing_m"][0].as_f64().unwrap_or(1.0), ex["spacing_m"][1].as_f64().unwrap_or(1.0)];
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for &r in &tree.roots {
+            for a in 0..3 {
+                lo[a] = lo[a].min(tree.nodes[r].min[a]);
+                hi[a] = hi[a].max(tree.nodes[r].max[a]);
+            }
+        }
+        Ok(Tileset { dir: dir.to_path_buf(), tree, grid, spacing_m, bounds: (lo, hi) })
+    }
+
+    /// Path of a node's .glb.
+    pub fn chunk_path(&self, node: usize) -> PathBuf {
+        self.dir.join(&self.tree.nodes[node].uri)
+    }
+}
+
+/// One vertex as the GPU sees it (40 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Vertex {
+    /// Chunk-local position, metres.
+    pub pos: [f32; 3],
+    /// Unit normal.
+    pub normal: [f32; 3],
+    /// TEXCOORD_0 (0 without a texture).
+    pub uv: [f32; 2],
+    /// Morph delta in y toward the parent surface, metres.
+    pub morph_dy: f32,
+    /// 0 on the surface, 1 on a skirt.
+    pub role: f32,
+}
+
+/// An RGBA8 image with its mip chain (level 0 first).
+pub struct Mips {
+    /// `(width, height, rgba bytes)` per level.
+    pub levels: Vec<(u32, u32, Vec<u8>)>,
+}
+
+/// A decoded chunk, ready to upload.
+pub struct ChunkMesh {
+    /// Node translation (f64): world = translation + local position.
+    pub translation: [f64; 3],
+    /// Surface vertices, then skirt vertices.
+    pub vertices: Vec<Vertex>,
+    /// Triangle list: surface triangles in `..surface_indices`, skirts after.
+    pub indices: Vec<u32>,
+    /// Index count of the surface part.
+    pub surface_indices: u32,
+    /// Line list of the unique surface and skirt edges (wireframe).
+    pub edges: Vec<u32>,
+    /// Material base colour (multiplies the texture).
+    pub base_colour: [f32; 4],
+    /// The baseColor texture, if any.
+    pub texture: Option<Mips>,
+}
+
+impl ChunkMesh {
+    /// Bytes this chunk takes on the GPU (vertex, index and line buffers and
+    /// the texture with its mips): what the memory budget counts.
+    pub fn gpu_bytes(&self) -> u64 {
+        let tex: usize = self.texture.as_ref().map_or(0, |m| m.levels.iter().map(|l| l.2.len()).sum());
+        (self.vertices.len() * std::mem::size_of::<Vertex>() + (self.indices.len() + self.edges.len()) * 4 + tex) as u64
+    }
+
+    /// Surface triangles.
+    pub fn surface_triangles(&self) -> u32 {
+        self.surface_indices / 3
+    }
+}
+
+/// Reads and decodes one chunk file.
+pub fn load_chunk(path: &Path) -> Result<ChunkMesh> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    decode_chunk(&bytes).with_context(|| path.display().to_string())
+}
+
+/// Decodes a chunk from .glb bytes.
+pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
+    let (doc, buffers, images) = gltf::import_slice(bytes)?;
+    let Some(node) = doc.nodes().next() else { bail!("no node") };
+    let Some(mesh) = node.mesh() else { bail!("the node has no mesh") };
+    // f64 translation from the JSON itself: `gltf` hands it over as f32.
+    let glb = gltf::Glb::from_slice(bytes)?;
+    let json: serde_json::Value = serde_json::from_slice(&glb.json)?;
+    let t = &json["nodes"][node.index()]["translation"];
+    let translation = [0, 1, 2].map(|a| t[a].as_f64().unwrap_or(0.0));
+    let mut out = ChunkMesh {
+        translation,
+        vertices: Vec::new(),
+        indices: Vec::new(),
+        surface_indices: 0,
+        edges: Vec::new(),
+        base_colour: [1.0; 4],
+        texture: None,
+    };
+    let mut prims: Vec<(bool, gltf::Primitive)> = mesh
+        .primitives()
+        .map(|p| {
+            let skirt = p.extras().as_ref().is_some_and(|e| e.get().contains("\"skirt\""));
+            (skirt, p)
+        })
+        .collect();
+    prims.sort_by_key(|p| p.0);
+    for (skirt, prim) in prims {
+        let reader = prim.reader(|b| Some(&buffers[b.index()]));
+        let pos: Vec<[f32; 3]> = reader.read_positions().context("a primitive without POSITION")?.collect();
+        let nrm: Vec<[f32; 3]> =
+            reader.read_normals().map(|n| n.collect()).unwrap_or_else(|| vec![[0.0, 1.0, 0.0]; pos.len()]);
+        let uv: Vec<[f32; 2]> =
+            reader.read_tex_coords(0).map(|t| t.into_f32().collect()).unwrap_or_else(|| vec![[0.0; 2]; pos.len()]);
+        let dy: Vec<f32> = match reader.read_morph_targets().next() {
+            Some((Some(d), _, _)) => d.map(|v| v[1]).collect(),
+            _ => vec![0.0; pos.len()],
+        };
+        let base = out.vertices.len() as u32;
+        let role = if skirt { 1.0 } else { 0.0 };
+        for (((&pos, &normal), &uv), &morph_dy) in pos.iter().zip(&nrm).zip(&uv).zip(&dy) {
+            out.vertices.push(Vertex { pos, normal, uv, morph_dy, role });
+        }
+        let idx: Vec<u32> = match reader.read_indices() {
+            Some(i) => i.into_u32().map(|i| i + base).collect(),
+            None => (base..base + pos.len() as u32).collect(),
+        };
+        out.indices.extend_from_slice(&idx);
+        if !skirt {
+            out.surface_indices = out.indices.len() as u32;
+            let pbr = prim.material().pbr_metallic_roughness();
+            out.base_colour = pbr.base_color_factor();
+            if let Some(info) = pbr.base_color_texture() {
+                let img = &images[info.texture().source().index()];
+                out.texture = Some(mips(rgba(img)?));
+            }
+        }
+    }
+    out.edges = unique_edges(&out.indices);
+    Ok(out)
+}
+
+fn rgba(img: &gltf::image::Data) -> Result<(u32, u32, Vec<u8>)> {
+    use gltf::image::Format;
+    let px = match img.format {
+        Format::R8G8B8A8 => img.pixels.clone(),
+        Format::R8G8B8 => img.pixels.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        Format::R8 => img.pixels.iter().flat_map(|&g| [g, g, g, 255]).collect(),
+        Format::R8G8 => img.pixels.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0], p[1]]).collect(),
+        f => bail!("texture format {f:?} is not supported"),
+    };
+    Ok((img.width, img.height, px))
+}
+
+/// A 2×2 box-filtered mip chain down to 1×1 (the files ask for mipmapping).
+fn mips(level0: (u32, u32, Vec<u8>)) -> Mips {
+    let mut levels = vec![level0];
+    loop {
+        let (w, h, px) = levels.last().expect("level 0");
+        if *w == 1 && *h == 1 {
+            break;
+        }
+        let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+        let mut out = vec![0u8; (nw * nh * 4) as usize];
+        for y in 0..nh {
+            for x in 0..nw {
+                for c in 0..4 {
+                    let mut s = 0u32;
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (sx, sy) = ((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
+                        s += u32::from(px[((sy * w + sx) * 4 + c) as usize]);
+                    }
+                    out[((y * nw + x) * 4 + c) as usize] = ((s + 2) / 4) as u8;
+                }
+            }
+        }
+        levels.push((nw, nh, out));
+    }
+    Mips { levels }
+}
+
+/// Each triangle edge once, as a line list.
+fn unique_edges(indices: &[u32]) -> Vec<u32> {
+    let mut e: Vec<(u32, u32)> = indices
+        .chunks_exact(3)
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .map(|(a, b)| (a.min(b), a.max(b)))
+        .collect();
+    e.sort_unstable();
+    e.dedup();
+    e.into_iter().flat_map(|(a, b)| [a, b]).collect()
+}
