@@ -52,21 +52,6 @@ pub struct ChunkMesh {
 }
 
 impl ChunkMesh {
-    /// A placeholder for a chunk whose mesh is no longer needed.
-    pub fn empty(key: ChunkKey) -> Self {
-        ChunkMesh {
-            key,
-            footprint: ((0, 0), (0, 0)),
-            delta_m: 0.0,
-            vertices: Vec::new(),
-            triangles: Vec::new(),
-            kept: Vec::new(),
-            max_error_m: 0.0,
-            relief_m: 0.0,
-            scans: Vec::new(),
-        }
-    }
-
     /// Whether this mesh already meets `delta_m` with room for f32 output.
     pub fn meets(&self, delta_m: f64) -> bool {
         self.max_error_m <= decimate::build_target(delta_m, self.relief_m)
