@@ -48,6 +48,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         parent: None,
         max_vertices: MAX_VERTICES,
         dividing_lines: true,
+        cancel: None,
     };
     build_chunk(&grid(hf), &spec).expect("the fixture meshes")
 }

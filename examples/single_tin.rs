@@ -27,6 +27,7 @@ fn main() {
         parent: None,
         max_vertices: usize::MAX,
         dividing_lines: false,
+        cancel: None,
     };
     let mesh = build_chunk(&grid, &spec).expect("meshes");
     let secs = t.elapsed().as_secs_f64();

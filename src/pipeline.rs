@@ -187,6 +187,9 @@ pub struct Report {
     /// Levels added at the bottom (same footprint, half the δ) so that the
     /// coarser chunks fit u16 indices.
     pub refine_levels: u32,
+    /// Wall seconds of the attempts with fewer refine levels that stopped at
+    /// a chunk too dense for u16 indices (part of `seconds.chunks`).
+    pub discarded_s: f64,
     /// Widest deepest-level chunk, in cells (set, or chosen from the data).
     pub leaf_cells: u32,
 }
@@ -303,13 +306,16 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         None => auto_leaf_cells(&grid, opts.config.max_error_m),
     };
     let mut refine = 0;
+    let attempts = Instant::now();
     loop {
         let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, leaf_cells, refine);
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
+        let discarded = attempts.elapsed();
         match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
+                report.discarded_s = discarded.as_secs_f64();
                 report.leaf_cells = leaf_cells;
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
@@ -359,6 +365,7 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
                 parent: None,
                 max_vertices: usize::MAX,
                 dividing_lines: false,
+                cancel: None,
             };
             if let Ok(mesh) = build_chunk(grid, &spec) {
                 vertices += mesh.vertices.len();
@@ -443,16 +450,9 @@ fn build_levels(
         failed: std::sync::atomic::AtomicBool::new(false),
         bar: progress_bar(opts.progress, planned as u64),
     };
-    // Depth first, subtrees in parallel: a chunk's mesh lives only while its
-    // children are built, so memory holds a few root-to-leaf paths rather
-    // than whole levels.
-    let roots: Vec<ChunkKey> = tree.roots().into_iter().filter(|&k| run.worth_building(k)).collect();
-    let built: Vec<Result<Vec<BuiltChunk>, BuildError>> = roots.par_iter().map(|&k| run.subtree(k, None)).collect();
+    let chunks = run.all_chunks();
     run.bar.finish_and_clear();
-    let mut chunks = Vec::new();
-    for b in built {
-        chunks.extend(b?);
-    }
+    let mut chunks = chunks?;
     chunks.sort_by_key(|c| c.record.key);
     let mut report = Report {
         samples: hf.width * hf.height,
@@ -504,6 +504,15 @@ fn build_levels(
     Ok((report, chunks.into_iter().map(|c| c.record).collect(), texturer.map(|t| t.extras(cfg, generated))))
 }
 
+fn is_cancel(e: &BuildError) -> bool {
+    matches!(e, BuildError::Mesh(MeshError::Cancelled))
+}
+
+/// The most chunks a level may have to be built level-first
+/// ([`Run::all_chunks`]): at most this many meshes of up to 65 535 vertices
+/// are kept at once, about 150 MB.
+const LEVEL_FIRST_CHUNKS: usize = 16;
+
 /// What one chunk adds to the report and the index.
 struct BuiltChunk {
     record: TileRecord,
@@ -535,16 +544,92 @@ impl Run<'_> {
         self.grid.filled.is_none() || has_valid(self.grid, self.tree, k)
     }
 
+    /// Builds every chunk. A chunk whose footprint holds more samples than
+    /// one mesh may have vertices can fail to meet its δ, and then the whole
+    /// build starts again with one more level ([`build_into`]). Such chunks
+    /// fail most often at the top, so the top levels are built first, one
+    /// level at a time, while they have such chunks and few enough that
+    /// keeping a level's meshes costs little ([`LEVEL_FIRST_CHUNKS`]): a
+    /// failure there wastes only them, not whole subtrees built depth first
+    /// before it. Below them the tree is built depth first, subtrees in
+    /// parallel: a chunk's mesh lives only while its children are built, so
+    /// memory holds a few root-to-leaf paths rather than whole levels.
+    fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
+        let tree = self.tree;
+        let level_first = (0..=tree.depth() as usize)
+            .take_while(|&l| {
+                let widest = |spans: &[(u32, u32)]| spans.iter().map(|s| (s.1 - s.0 + 1) as usize).max().unwrap_or(0);
+                widest(&tree.xs[l]) * widest(&tree.zs[l]) > MAX_VERTICES
+                    && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+            })
+            .count();
+        let mut done = Vec::new();
+        // (parent mesh, its children to build)
+        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
+            vec![(None, tree.roots().into_iter().filter(|&k| self.worth_building(k)).collect())];
+        for _ in 0..level_first {
+            let jobs: Vec<(Option<&ChunkMesh>, ChunkKey)> =
+                frontier.iter().flat_map(|(p, kids)| kids.iter().map(move |&k| (p.as_ref(), k))).collect();
+            let level: Vec<Result<(ChunkMesh, BuiltChunk), BuildError>> =
+                jobs.par_iter().map(|&(p, k)| self.chunk(k, p).inspect_err(|_| self.fail())).collect();
+            // The error to report is one that is not a cancellation it caused.
+            if let Some(e) = level.iter().position(|r| r.as_ref().is_err_and(|e| !is_cancel(e))) {
+                return Err(level.into_iter().nth(e).and_then(Result::err).expect("an error"));
+            }
+            frontier = level
+                .into_iter()
+                .map(|r| {
+                    let (mesh, built) = r.expect("no error above");
+                    let kids = self.kids(&built);
+                    done.push(built);
+                    (Some(mesh), kids)
+                })
+                .collect();
+        }
+        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> = frontier
+            .into_par_iter()
+            .map(|(mesh, kids)| {
+                let mut all = Vec::new();
+                for b in kids.par_iter().map(|&k| self.subtree(k, mesh.as_ref())).collect::<Vec<_>>() {
+                    all.extend(b?);
+                }
+                Ok(all)
+            })
+            .collect();
+        for b in below {
+            done.extend(b?);
+        }
+        Ok(done)
+    }
+
+    /// Marks this build as failed: other chunks stop early.
+    fn fail(&self) {
+        self.failed.store(true, Ordering::Relaxed);
+    }
+
+    /// The children of a built chunk that are worth building.
+    fn kids(&self, built: &BuiltChunk) -> Vec<ChunkKey> {
+        match built.leaf {
+            true => Vec::new(),
+            false => self.tree.children(built.record.key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+        }
+    }
+
     /// Builds chunk `key` and everything below it.
     fn subtree(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<Vec<BuiltChunk>, BuildError> {
         if self.failed.load(Ordering::Relaxed) {
             return Ok(Vec::new()); // another subtree failed: its error is returned
         }
-        let (mesh, built) = self.chunk(key, parent).inspect_err(|_| self.failed.store(true, Ordering::Relaxed))?;
-        let kids: Vec<ChunkKey> = match built.leaf {
-            true => Vec::new(),
-            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+        let (mesh, built) = match self.chunk(key, parent) {
+            Ok(built) => built,
+            // Another chunk failed and returns its own error.
+            Err(e) if is_cancel(&e) => return Ok(Vec::new()),
+            Err(e) => {
+                self.fail();
+                return Err(e);
+            }
         };
+        let kids = self.kids(&built);
         let mut all = vec![built];
         let below: Vec<Result<Vec<BuiltChunk>, BuildError>> =
             kids.par_iter().map(|&k| self.subtree(k, Some(&mesh))).collect();
@@ -570,6 +655,7 @@ impl Run<'_> {
             parent,
             max_vertices: MAX_VERTICES,
             dividing_lines: tree.splits(level),
+            cancel: Some(&self.failed),
         };
         let mesh = build_chunk(grid, &spec)?;
         if mesh.max_error_m > spec.delta_m {

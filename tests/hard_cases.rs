@@ -32,7 +32,7 @@ use terrachunk::pipeline::{LevelReport, Report, build};
 use terrachunk::verify::VerifyReport;
 
 use crate::common::{
-    assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, with_config, write_asc,
+    all_files, assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, with_config, write_asc,
     write_asc_spaced,
 };
 
@@ -72,6 +72,15 @@ fn leaf(b: &Built) -> &LevelReport {
 fn hills(i: usize, j: usize) -> f64 {
     let (x, z) = (j as f64, i as f64);
     300.0 + 120.0 * (x / 23.0).sin() * (z / 31.0).cos() + 40.0 * ((x + 2.0 * z) / 11.0).sin()
+}
+
+/// White noise, uniform in ±1000 m.
+fn white_noise(i: usize, j: usize) -> f64 {
+    let mut x = (i as u64) << 32 | j as u64;
+    x = (x ^ (x >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    x = (x ^ (x >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x ^= x >> 32;
+    (x >> 11) as f64 / (1u64 << 53) as f64 * 2000.0 - 1000.0
 }
 
 // ------------------------------------------------------------- flat ground
@@ -163,13 +172,7 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
     assert_eq!(leaf(&b).max_error_m, 0.0);
     // White noise (uniform in ±1000 m) needs (almost) every sample. Small:
     // one chunk at full density.
-    let noise = |i: usize, j: usize| {
-        let mut x = (i as u64) << 32 | j as u64;
-        x = (x ^ (x >> 31)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        x = (x ^ (x >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        x ^= x >> 32;
-        (x >> 11) as f64 / (1u64 << 53) as f64 * 2000.0 - 1000.0
-    };
+    let noise = white_noise;
     let dem = write_asc(tmp.path(), "small.asc", 129, 129, noise);
     let b = survives(&dem, config(0.01, 32));
     assert_eq!(b.report.levels.len(), 1);
@@ -181,9 +184,34 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
     let dem = write_asc(tmp.path(), "big.asc", 257, 257, noise);
     let b = survives(&dem, config(0.5, 128));
     assert!(b.report.refine_levels > 0, "the top chunk cannot hold 257² vertices");
+    assert!(b.report.discarded_s > 0.0, "the attempts with fewer levels are reported");
     let deepest = leaf(&b);
     assert!(deepest.max_error_m <= 0.5);
     assert!(deepest.vertices * 100 >= 99 * deepest.chunks * 129 * 129, "{:#?}", b.report.levels);
+}
+
+/// Chunks that fail (too dense for u16 indices) stop the others of their
+/// build early, and the build starts again with a refine level: whichever
+/// chunk fails first and whatever was cancelled, the output is the same bytes
+/// at 1 and 2 threads.
+#[test]
+fn restarted_builds_are_the_same_bytes_at_any_thread_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Two top chunks, one of hills and one of ±10 m noise: the noisy one is
+    // too dense until its δ passes the noise, the other is built (or
+    // cancelled) meanwhile.
+    let rough = |i: usize, j: usize| if j > 300 { white_noise(i, j) / 100.0 } else { hills(i, j) };
+    let dem = write_asc(tmp.path(), "rough.asc", 601, 301, rough);
+    let files: Vec<_> = [1, 2]
+        .map(|threads| {
+            let out = tmp.path().join(format!("out{threads}"));
+            let report = build(&with_config(&dem, &out, Config { threads, ..config(0.5, 80) })).unwrap();
+            assert!(report.refine_levels > 0, "{threads} threads: the top chunks are too dense at first");
+            all_files(&out)
+        })
+        .into_iter()
+        .collect();
+    assert!(files[0] == files[1], "1 and 2 threads wrote different tilesets");
 }
 
 // ----------------------------------------------------------- huge offsets

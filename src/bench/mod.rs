@@ -502,6 +502,7 @@ pub fn single_tin(hf: &Heightfield, max_error_m: f64) -> Result<ChunkMesh, MeshE
         parent: None,
         max_vertices: usize::MAX,
         dividing_lines: false,
+        cancel: None,
     };
     build_chunk(&grid, &spec)
 }

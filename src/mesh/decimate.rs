@@ -26,6 +26,7 @@
 
 use std::cmp::Ordering;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 
 use robust::Coord;
 
@@ -136,6 +137,9 @@ pub struct ChunkSpec<'p> {
     /// Add the dividing lines (the children's borders). Off only for the
     /// unconstrained single-TIN baseline the benchmarks compare against.
     pub dividing_lines: bool,
+    /// Stop early with [`MeshError::Cancelled`] once this is set (another
+    /// chunk failed, so this build's work is lost anyway).
+    pub cancel: Option<&'p AtomicBool>,
 }
 
 /// Builds one chunk's TIN (see the module comment for the four steps).
@@ -209,6 +213,12 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
                 delta_m: spec.delta_m,
                 limit: spec.max_vertices,
             });
+        }
+        if let Some(cancel) = spec.cancel
+            && tin.pts.len() % 1024 == 0
+            && cancel.load(AtomicOrdering::Relaxed)
+        {
+            return Err(MeshError::Cancelled);
         }
         tin.take_dirty(&mut dirty);
         if dirty.binary_search(&c.t).is_err() {

@@ -108,4 +108,7 @@ pub enum MeshError {
         /// The vertex limit.
         limit: usize,
     },
+    /// Stopped because another chunk of the same build failed.
+    #[error("stopped: another chunk failed")]
+    Cancelled,
 }
