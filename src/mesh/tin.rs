@@ -103,21 +103,34 @@ impl Tin {
                 tin.fixed.push(f[k]);
             }
         }
-        let mut keys: Vec<(u64, u32)> = (0..n as u32)
-            .map(|e| {
-                let (a, b) = (u64::from(tin.tv[e as usize]), u64::from(tin.tv[next(e) as usize]));
-                (a.min(b) << 32 | a.max(b), e)
-            })
-            .collect();
-        keys.sort_unstable();
-        for w in keys.windows(2) {
-            if w[0].0 == w[1].0 {
-                let (a, b) = (w[0].1 as usize, w[1].1 as usize);
-                tin.twin[a] = b as u32;
-                tin.twin[b] = a as u32;
-                let f = tin.fixed[a] || tin.fixed[b];
-                tin.fixed[a] = f;
-                tin.fixed[b] = f;
+        // The twin of a → b is b → a: group the half-edges by origin (a
+        // counting sort), then look for each one among its end's few.
+        let mut start = vec![0u32; tin.pts.len() + 1];
+        for &a in &tin.tv {
+            start[a as usize + 1] += 1;
+        }
+        for v in 0..tin.pts.len() {
+            start[v + 1] += start[v];
+        }
+        let mut fill = start.clone();
+        let mut by_origin = vec![0u32; n];
+        for (e, &a) in tin.tv.iter().enumerate() {
+            by_origin[fill[a as usize] as usize] = e as u32;
+            fill[a as usize] += 1;
+        }
+        for e in 0..n as u32 {
+            if tin.twin[e as usize] != NONE {
+                continue;
+            }
+            let (a, b) = (tin.tv[e as usize], tin.tv[next(e) as usize]);
+            let around_b = &by_origin[start[b as usize] as usize..start[b as usize + 1] as usize];
+            if let Some(&f) = around_b.iter().find(|&&f| tin.tv[next(f) as usize] == a) {
+                let (e, f) = (e as usize, f as usize);
+                tin.twin[e] = f as u32;
+                tin.twin[f] = e as u32;
+                let fixed = tin.fixed[e] || tin.fixed[f];
+                tin.fixed[e] = fixed;
+                tin.fixed[f] = fixed;
             }
         }
         tin
