@@ -301,9 +301,9 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
-    let leaf_cells = match opts.config.leaf_cells {
+    let mut leaf_cells = match opts.config.leaf_cells {
         Some(c) => c,
-        None => auto_leaf_cells(&grid, opts.config.max_error_m),
+        None => auto_leaf_cells(&grid, opts.config.max_error_m, true),
     };
     let mut refine = 0;
     let attempts = Instant::now();
@@ -319,24 +319,39 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
                 report.leaf_cells = leaf_cells;
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
+            // Leaves wider than a dense leaf may be: refine levels keep their
+            // footprint and cannot help, narrower leaves do.
+            Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > DENSE_LEAF_CELLS => {
+                leaf_cells = auto_leaf_cells(&grid, opts.config.max_error_m, false);
+                refine = 0;
+            }
             Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
             Err(e) => return Err(e),
         }
     }
 }
 
-/// Surface vertices an average chunk should hold when `leaf_cells` is left
-/// to the data: inside the 1 000–8 000 that keeps draw calls few and chunks
-/// small enough to cull and page finely.
-pub const CHUNK_VERTICES: f64 = 4000.0;
+/// Most surface vertices an average chunk may hold when `leaf_cells` is left
+/// to the data: the top of the 1 000–8 000 that keeps draw calls few and
+/// chunks small enough to cull and page finely.
+pub const CHUNK_VERTICES: f64 = 8000.0;
 
-/// The leaf width, in cells, whose tree has about [`CHUNK_VERTICES`]
-/// vertices per chunk on average. A level of δ holds about (valid samples ×
-/// vertices per sample at δ) vertices whatever its chunking, so the average
-/// follows from the planned tree and the density at each level's δ, measured
-/// with one greedy TIN on each of up to 4 × 4 windows of 64 × 64 cells
-/// spread over the grid.
-pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
+/// Widest leaf, in cells, that fits u16 indices at full sample density
+/// (251² samples, plus the cut points on its lines).
+pub const DENSE_LEAF_CELLS: u32 = 250;
+
+/// The leaf width, in cells, of the shallowest tree whose chunks hold at most
+/// [`CHUNK_VERTICES`] vertices on average (leaves no narrower than 32 cells).
+/// Fewer levels nest fewer constraints into the leaves: on Fuji at 10 m, two
+/// levels instead of three take the leaves from 1.24 to 1.06 times the
+/// triangles of one unconstrained TIN. A level of δ holds about (valid
+/// samples × vertices per sample at δ) vertices whatever its chunking, so
+/// the average follows from the planned tree and the density at each level's
+/// δ, measured with one greedy TIN on each of up to 4 × 4 windows of 64 × 64
+/// cells spread over the grid. Leaves wider than [`DENSE_LEAF_CELLS`] are
+/// chosen only where the densest window says they hold under half of 65 535
+/// vertices, and not at all with `wide` false (see [`build_into`]).
+pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, wide: bool) -> u32 {
     let cells = 64.min(grid.width - 1).min(grid.height - 1);
     let starts = |n: usize| {
         let k = ((n - 1) / cells).clamp(1, 4);
@@ -355,8 +370,9 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
             }
         }
     }
+    // Vertices per valid sample at δ: over all windows, and the densest one.
     let density = |delta_m: f64| {
-        let (mut vertices, mut samples) = (0usize, 0usize);
+        let (mut vertices, mut samples, mut densest) = (0usize, 0usize, 0.0f64);
         for &(xs, zs, valid) in &windows {
             let spec = ChunkSpec {
                 key: ChunkKey { level: 0, x: 0, y: 0 },
@@ -370,33 +386,46 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64) -> u32 {
             if let Ok(mesh) = build_chunk(grid, &spec) {
                 vertices += mesh.vertices.len();
                 samples += valid;
+                densest = densest.max(mesh.vertices.len() as f64 / valid as f64);
             }
         }
-        if samples == 0 { 0.0 } else { vertices as f64 / samples as f64 }
+        if samples == 0 { (0.0, 0.0) } else { (vertices as f64 / samples as f64, densest) }
     };
     let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
     // Density by k, for δ = max_error_m · 2^k.
-    let mut by_k: Vec<Option<f64>> = vec![None; 32];
-    let mut average = |c: u32| {
+    let mut by_k: Vec<Option<(f64, f64)>> = vec![None; 32];
+    let mut density_k = |k: usize, delta_m: f64| *by_k[k.min(31)].get_or_insert_with(|| density(delta_m));
+    // Every distinct tree: its leaf width is the widest chunk after d splits.
+    let full = ChunkTree::plan(grid.width, grid.height, max_error_m, 1, 0);
+    let widths: Vec<u32> = (0..full.xs.len())
+        .map(|d| {
+            let widest = |spans: &[(u32, u32)]| spans.iter().map(|s| s.1 - s.0).max().unwrap_or(0);
+            widest(&full.xs[d]).max(widest(&full.zs[d]))
+        })
+        .collect();
+    let mut candidates: Vec<u32> = widths.iter().copied().filter(|&c| c >= 32).collect();
+    if candidates.is_empty() {
+        candidates.push(32);
+    }
+    let deepest = *candidates.last().expect("one candidate");
+    for &c in &candidates {
+        let fits = c <= DENSE_LEAF_CELLS
+            || wide && {
+                let side = f64::from(c + 1);
+                density_k(0, max_error_m).1 * side * side <= MAX_VERTICES as f64 / 2.0
+            };
+        if !fits {
+            continue;
+        }
         let tree = ChunkTree::plan(grid.width, grid.height, max_error_m, c, 0);
         let levels = tree.delta_m.len();
         let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
-        let vertices: f64 = (0..levels)
-            .map(|l| {
-                let k = (levels - 1 - l).min(31);
-                *by_k[k].get_or_insert_with(|| density(tree.delta_m[l])) * valid
-            })
-            .sum();
-        vertices / chunks as f64
-    };
-    let mut best = (f64::INFINITY, 250);
-    for c in 32..=250 {
-        let miss = (average(c) / CHUNK_VERTICES).ln().abs();
-        if miss < best.0 {
-            best = (miss, c);
+        let vertices: f64 = (0..levels).map(|l| density_k(levels - 1 - l, tree.delta_m[l]).0 * valid).sum();
+        if vertices / chunks as f64 <= CHUNK_VERTICES {
+            return c;
         }
     }
-    best.1
+    deepest
 }
 
 struct Timers {

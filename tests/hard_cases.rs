@@ -579,3 +579,36 @@ fn write_tiff_f32(path: &Path, w: u32, h: u32, data: &[f32], nodata: Option<&str
     }
     img.write_data(data).unwrap();
 }
+
+// ------------------------------------------------------------ leaf sizes
+
+/// Left to the data, leaves are as wide as chunks averaging at most 8 000
+/// vertices allow, past the 250 cells a leaf at full density may have:
+/// fewer levels nest fewer constraints into the finest surface.
+#[test]
+fn sparse_ground_gets_wide_leaves_and_few_levels() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "hills.asc", 601, 601, hills);
+    let b = survives(&dem, Config { max_error_m: 20.0, ..Config::default() });
+    assert!(b.report.leaf_cells > 250, "leaves of {} cells", b.report.leaf_cells);
+    assert!(b.report.levels.len() <= 2, "{:#?}", b.report.levels);
+    assert!(leaf(&b).max_error_m <= 20.0);
+}
+
+/// Wide leaves chosen from sample windows that all missed a rough patch: the
+/// leaf over the patch needs more than 65 535 vertices, so the build starts
+/// again with leaves no wider than a dense leaf may be, and succeeds.
+#[test]
+fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
+    let tmp = tempfile::tempdir().unwrap();
+    // The 4 × 4 windows of 64 cells start at 0, 478, 957 and 1 435 per axis;
+    // the patch (300², ±10 m of noise) lies between the first two.
+    let rough = |i: usize, j: usize| {
+        if (100..400).contains(&i) && (100..400).contains(&j) { white_noise(i, j) / 100.0 } else { 0.0 }
+    };
+    let dem = write_asc(tmp.path(), "patch.asc", 1500, 1500, rough);
+    let b = survives(&dem, Config { max_error_m: 1.0, ..Config::default() });
+    assert!(b.report.leaf_cells <= 250, "leaves of {} cells", b.report.leaf_cells);
+    assert!(b.report.discarded_s > 0.0, "the wide attempt was discarded");
+    assert!(leaf(&b).max_error_m <= 1.0);
+}
