@@ -301,9 +301,15 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
+    // A wide leaf's texture must not hit `max_texture_px` before the source's
+    // own resolution does: that would blur what narrower leaves showed.
+    let widest_leaf = colour.as_ref().map_or(u32::MAX, |c| {
+        let px_per_cell = c.to_px[0].1.abs().max(c.to_px[1].1.abs()).max(1e-9);
+        (f64::from(opts.config.max_texture_px.saturating_sub(1)) / px_per_cell).floor().min(f64::from(u32::MAX)) as u32
+    });
     let mut leaf_cells = match opts.config.leaf_cells {
         Some(c) => c,
-        None => auto_leaf_cells(&grid, opts.config.max_error_m, true),
+        None => auto_leaf_cells(&grid, opts.config.max_error_m, widest_leaf),
     };
     let mut refine = 0;
     let attempts = Instant::now();
@@ -322,7 +328,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             // Leaves wider than a dense leaf may be: refine levels keep their
             // footprint and cannot help, narrower leaves do.
             Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > DENSE_LEAF_CELLS => {
-                leaf_cells = auto_leaf_cells(&grid, opts.config.max_error_m, false);
+                leaf_cells = auto_leaf_cells(&grid, opts.config.max_error_m, DENSE_LEAF_CELLS);
                 refine = 0;
             }
             Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
@@ -349,9 +355,9 @@ pub const DENSE_LEAF_CELLS: u32 = 250;
 /// the average follows from the planned tree and the density at each level's
 /// δ, measured with one greedy TIN on each of up to 4 × 4 windows of 64 × 64
 /// cells spread over the grid. Leaves wider than [`DENSE_LEAF_CELLS`] are
-/// chosen only where the densest window says they hold under half of 65 535
-/// vertices, and not at all with `wide` false (see [`build_into`]).
-pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, wide: bool) -> u32 {
+/// chosen only up to `widest` cells and where the densest window says they
+/// hold under half of 65 535 vertices (see [`build_into`]).
+pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
     let cells = 64.min(grid.width - 1).min(grid.height - 1);
     let starts = |n: usize| {
         let k = ((n - 1) / cells).clamp(1, 4);
@@ -410,7 +416,7 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, wide: bool) -> u32 {
     let deepest = *candidates.last().expect("one candidate");
     for &c in &candidates {
         let fits = c <= DENSE_LEAF_CELLS
-            || wide && {
+            || c <= widest && {
                 let side = f64::from(c + 1);
                 density_k(0, max_error_m).1 * side * side <= MAX_VERTICES as f64 / 2.0
             };
