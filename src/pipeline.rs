@@ -301,11 +301,15 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
-    // A wide leaf's texture must not hit `max_texture_px` before the source's
-    // own resolution does: that would blur what narrower leaves showed.
+    // A wide leaf's texture may hit `max_texture_px` only where its texels
+    // still keep the bound T_g ≤ δ/τ_max, or where the source's own texels
+    // are reached first: wider leaves must not blur what narrower ones showed.
     let widest_leaf = colour.as_ref().map_or(u32::MAX, |c| {
-        let px_per_cell = c.to_px[0].1.abs().max(c.to_px[1].1.abs()).max(1e-9);
-        (f64::from(opts.config.max_texture_px.saturating_sub(1)) / px_per_cell).floor().min(f64::from(u32::MAX)) as u32
+        let cfg = &opts.config;
+        let texels = f64::from(cfg.max_texture_px.saturating_sub(1));
+        let by_source = texels / c.to_px[0].1.abs().max(c.to_px[1].1.abs()).max(1e-9);
+        let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
+        by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
     });
     let mut leaf_cells = match opts.config.leaf_cells {
         Some(c) => c,
