@@ -230,6 +230,7 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
     let indices = match order {
         VertexCache::Fast => meshopt::optimize_vertex_cache_fifo(&p.indices, n, 16),
         VertexCache::Best => meshopt::optimize_vertex_cache(&p.indices, n),
+        VertexCache::Strip => meshopt::optimize_vertex_cache_strip(&p.indices, n),
     };
     let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
     let used = remap.iter().filter(|&&r| r != u32::MAX).count();
