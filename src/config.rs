@@ -79,8 +79,8 @@ pub enum Compress {
     #[default]
     None,
     /// KHR_mesh_quantization (required): u16 positions on a world-aligned
-    /// grid, the node's `scale` holding the step; i8 normals; i16 morph
-    /// deltas; u16 normalized texture coordinates.
+    /// grid, the node's `scale` holding the step; i8 normals; i8 (or i16)
+    /// morph deltas; u16 normalized texture coordinates.
     Quantize,
     /// `Quantize`, then every vertex and index stream through
     /// meshoptimizer's codecs (EXT_meshopt_compression, required).

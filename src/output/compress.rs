@@ -34,9 +34,10 @@
 //! `verify` re-measures the dequantized files against δ with no allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
-//! the vertex's rounded height, in whole steps: i16 (scaled by the node like
-//! POSITION), or f32 holding the same whole numbers where a delta exceeds
-//! 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
+//! the vertex's rounded height, in whole steps (scaled by the node like
+//! POSITION): i8 where every delta of the chunk fits, which is every leaf
+//! and most levels, else i16, or f32 holding the same whole numbers where a
+//! delta exceeds 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
 //! texture coordinates u16 normalized, the normal map's tangent i8 normalized.
 //!
 //! **Layout.** A chunk's vertex data lies in three bufferViews, each holding
@@ -369,9 +370,13 @@ fn position_column(frame: &Frame, prims: &[PrimData]) -> Column {
     Column { size: 8, parts }
 }
 
-/// The morph target's POSITION: whole height steps, i16 (8 bytes per
-/// vertex) where every primitive's fit (they share one view), else f32
-/// holding the same whole numbers (12).
+/// The morph target's POSITION: whole height steps in the narrowest type
+/// that holds every primitive's (they share one view): i8 (4 bytes per
+/// vertex), i16 (8) or f32 holding the same whole numbers (12). A leaf's
+/// samples are within δ(L−1) = 2·max_error_m of its parent's surface, 32
+/// steps of max_error_m/16 (Fuji's leaves: ±31), and i8 holds its deltas
+/// without the i16 high byte that flips with every sign: meshoptimizer packs
+/// them about a quarter tighter.
 fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
     let steps: Vec<Vec<i64>> = prims
         .iter()
@@ -381,12 +386,19 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
         .collect();
     let range = |d: &[i64]| (d.iter().copied().min().unwrap_or(0), d.iter().copied().max().unwrap_or(0));
     let (lo, hi) = range(&steps.concat());
-    let (size, ctype) = if lo >= -32767 && hi <= 32767 { (8, 5122) } else { (12, 5126) };
+    let (size, ctype) = if lo >= i64::from(i8::MIN) && hi <= i64::from(i8::MAX) {
+        (4, 5120)
+    } else if lo >= -32767 && hi <= 32767 {
+        (8, 5122)
+    } else {
+        (12, 5126)
+    };
     let parts = steps
         .iter()
         .map(|d| {
             let (lo, hi) = range(d);
             let bytes: Vec<u8> = match size {
+                4 => d.iter().flat_map(|&v| [0, v as i8 as u8, 0, 0]).collect(),
                 8 => d.iter().flat_map(|&v| [0, v as i16, 0, 0].into_iter().flat_map(i16::to_le_bytes)).collect(),
                 _ => d.iter().flat_map(|&v| [0.0, v as f32, 0.0].into_iter().flat_map(f32::to_le_bytes)).collect(),
             };
