@@ -13,9 +13,10 @@
 //! Files are read back with the `gltf` crate (verify, inspect, tests).
 //!
 //! With `compress = "quantize"` or `"meshopt"` the vertex data is written by
-//! [`super::compress`] instead (KHR_mesh_quantization, then
-//! EXT_meshopt_compression), and the node also carries a `scale`; the rest
-//! of the document is the same.
+//! [`super::compress`] instead (KHR_mesh_quantization in three bufferViews
+//! the surface and skirt share, then EXT_meshopt_compression), and the node
+//! also carries a `scale`; the rest of the document is the same but for the
+//! primitive mode, left at its default.
 
 use serde_json::{Value, json};
 
