@@ -474,7 +474,7 @@ fn build_levels(
         ctx: GlbContext {
             spacing_m: hf.spacing_m,
             generator: &generator,
-            vertex_cache: cfg.vertex_cache,
+            vertex_cache: cfg.triangle_order(),
             quantization: quantization.as_ref(),
             meshopt: cfg.compress == Compress::Meshopt,
         },

@@ -263,14 +263,16 @@ fn vertex_cache_modes_reorder_the_same_triangles() {
         let tmp = tempfile::tempdir().unwrap();
         let out = tmp.path().join("out");
         let mut o = options(&dem, &out, 2.0, 0);
-        o.config.vertex_cache = mode;
+        o.config.vertex_cache = Some(mode);
         build(&o).unwrap();
         let tris = surface_triangles(&out);
         (tmp, tris)
     };
     let (_a, fast) = built(VertexCache::Fast);
     let (_b, best) = built(VertexCache::Best);
+    let (_c, strip) = built(VertexCache::Strip);
     assert_eq!(fast.len(), best.len());
+    assert_eq!(fast.len(), strip.len());
     let acmr = |set: &[Surface]| {
         let (mut misses, mut tris) = (0.0, 0.0);
         for (_, _, idx, n) in set {
@@ -280,12 +282,13 @@ fn vertex_cache_modes_reorder_the_same_triangles() {
         }
         misses / tris
     };
-    for (f, b) in fast.iter().zip(&best) {
+    for (f, b) in [&best, &strip].into_iter().flat_map(|other| fast.iter().zip(other)) {
         assert_eq!(f.0.file_name(), b.0.file_name());
         assert_eq!(f.1, b.1, "{}: same triangles, same winding", f.0.display());
     }
-    let (af, ab) = (acmr(&fast), acmr(&best));
+    let (af, ab, as_) = (acmr(&fast), acmr(&best), acmr(&strip));
     assert!(ab <= af, "the table-driven order transforms no more vertices than FIFO ({ab} vs {af})");
+    assert!(as_ <= af, "the strip order transforms no more vertices than FIFO ({as_} vs {af})");
     assert!(af < 1.1, "even the fast order reuses cached vertices (ACMR {af})");
 }
 

@@ -34,24 +34,34 @@
 //! `verify` re-measures the dequantized files against δ with no allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
-//! the vertex's rounded height, in whole steps: i16 (scaled by the node like
-//! POSITION), or f32 holding the same whole numbers where a delta exceeds
-//! 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
+//! the vertex's rounded height, in whole steps (scaled by the node like
+//! POSITION): i8 where every delta of the chunk fits, which is every leaf
+//! and most levels, else i16, or f32 holding the same whole numbers where a
+//! delta exceeds 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
 //! texture coordinates u16 normalized, the normal map's tangent i8 normalized.
 //!
-//! **meshopt** encodes every vertex stream (codec version 0; normals through
-//! the 8-bit OCTAHEDRAL filter, whose decoded values `quantize` writes too)
-//! and every index stream (triangle codec, whose corner rotation `quantize`
-//! writes too), so it decodes to exactly the bytes `quantize` writes.
-//! EXT_meshopt_compression is *required* and the fallback buffer holds no
-//! data (`fallback: true`): the point of the mode is size, and an
-//! uncompressed fallback would make the file larger than `quantize`; a
-//! reader without the decoder should use `quantize` or `none` output.
+//! **Layout.** A chunk's vertex data lies in three bufferViews, each holding
+//! the surface then the skirt ([`write_quantized`]): the vertex attributes
+//! interleaved, the normals, the triangles. Every bufferView costs the JSON
+//! about 200 bytes and every meshopt stream a header and a 32-byte tail,
+//! which at a few thousand vertices per chunk is a byte per vertex; the
+//! document also leaves out defaults (`byteOffset` 0, primitive mode 4).
+//!
+//! **meshopt** encodes every vertex stream (codec version 0, the one
+//! EXT_meshopt_compression allows; normals through the 8-bit OCTAHEDRAL
+//! filter, whose decoded values `quantize` writes too) and the index stream
+//! (triangle codec, whose corner rotation `quantize` writes too), so it
+//! decodes to exactly the bytes `quantize` writes. EXT_meshopt_compression
+//! is *required* and the fallback buffer holds no data (`fallback: true`):
+//! the point of the mode is size, and an uncompressed fallback would make the
+//! file larger than `quantize`; a reader without the decoder should use
+//! `quantize` or `none` output.
 
 use serde_json::{Value, json};
 
 use crate::chunk::Chunk;
 use crate::heightfield::Heightfield;
+use crate::output::gltf::PrimData;
 use crate::quadtree::ChunkTree;
 
 /// The largest u16.
@@ -247,22 +257,25 @@ fn align4(bin: &mut Vec<u8>) {
     }
 }
 
-/// Appends one vertex attribute of `count` elements `stride` bytes apart
-/// (`bytes` already laid out) and returns its accessor index.
-fn push_attribute(sink: &mut Sink, bytes: &[u8], stride: usize, accessor: Value) -> usize {
+/// Appends a bufferView of `bytes` (a `stride` for vertex data, none for
+/// indices) and returns its index. A zero `byteOffset` is left out, as it
+/// is the default.
+fn push_view(sink: &mut Sink, bytes: &[u8], stride: Option<usize>) -> usize {
     align4(&mut sink.bin);
-    let count = bytes.len() / stride;
-    sink.views.push(json!({
-        "buffer": 0, "byteOffset": sink.bin.len(), "byteLength": bytes.len(), "byteStride": stride, "target": 34962,
-    }));
+    let mut view = json!({"buffer": 0, "byteLength": bytes.len()});
+    if !sink.bin.is_empty() {
+        view["byteOffset"] = sink.bin.len().into();
+    }
+    match stride {
+        Some(stride) => {
+            view["byteStride"] = stride.into();
+            view["target"] = 34962.into();
+        }
+        None => view["target"] = 34963.into(),
+    }
     sink.bin.extend_from_slice(bytes);
-    let view = sink.views.len() - 1;
-    sink.streams.push(Stream { view, count, stride, triangles: false, vertices: count, filtered: None });
-    let mut accessor = accessor;
-    accessor["bufferView"] = view.into();
-    accessor["count"] = count.into();
-    sink.accessors.push(accessor);
-    sink.accessors.len() - 1
+    sink.views.push(view);
+    sink.views.len() - 1
 }
 
 /// Per-component minimum and maximum, for POSITION accessors.
@@ -277,98 +290,216 @@ fn bounds<const N: usize>(values: impl Iterator<Item = [f64; N]>) -> (Vec<f64>, 
     (lo, hi)
 }
 
-/// POSITION: u16 steps, 8 bytes per vertex (KHR_mesh_quantization aligns
-/// vertex elements to 4 bytes).
-pub fn push_positions(sink: &mut Sink, frame: &Frame, positions: &[[f64; 3]]) -> usize {
-    let q: Vec<[u16; 3]> = positions.iter().map(|p| frame.position(p)).collect();
-    let bytes: Vec<u8> = q.iter().flat_map(|v| [v[0], v[1], v[2], 0].into_iter().flat_map(u16::to_le_bytes)).collect();
-    let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
-    let (min, max): (Vec<u64>, Vec<u64>) =
-        (min.iter().map(|&v| v as u64).collect(), max.iter().map(|&v| v as u64).collect());
-    push_attribute(sink, &bytes, 8, json!({"componentType": 5123, "type": "VEC3", "min": min, "max": max}))
-}
-
-/// The morph target's POSITION: whole height steps, i16 where every delta
-/// fits, else f32 holding the same whole numbers.
-pub fn push_deltas(sink: &mut Sink, frame: &Frame, positions: &[[f64; 3]], morph_dy: &[f64]) -> usize {
-    let d: Vec<i64> = positions.iter().zip(morph_dy).map(|(p, dy)| frame.delta_steps(p[1], p[1] + dy)).collect();
-    let (lo, hi) = (d.iter().copied().min().unwrap_or(0), d.iter().copied().max().unwrap_or(0));
-    if lo >= -32767 && hi <= 32767 {
-        let bytes: Vec<u8> =
-            d.iter().flat_map(|&v| [0, v as i16, 0, 0].into_iter().flat_map(i16::to_le_bytes)).collect();
-        push_attribute(
-            sink,
-            &bytes,
-            8,
-            json!({"componentType": 5122, "type": "VEC3", "min": [0, lo, 0], "max": [0, hi, 0]}),
-        )
-    } else {
-        let bytes: Vec<u8> =
-            d.iter().flat_map(|&v| [0.0, v as f32, 0.0].into_iter().flat_map(f32::to_le_bytes)).collect();
-        let (lo, hi) = (lo as f32, hi as f32);
-        push_attribute(
-            sink,
-            &bytes,
-            12,
-            json!({"componentType": 5126, "type": "VEC3", "min": [0.0, lo, 0.0], "max": [0.0, hi, 0.0]}),
-        )
-    }
-}
-
 /// A unit vector's component as i8 normalized.
 fn snorm8(v: f32) -> i8 {
     (v.clamp(-1.0, 1.0) * 127.0).round() as i8
 }
 
-/// NORMAL: i8 normalized, 4 bytes per vertex, as meshoptimizer's 8-bit
-/// octahedral filter decodes them: `meshopt` stores the two octahedral
-/// coordinates (filter OCTAHEDRAL, which the vertex codec packs tighter than
-/// three components), `quantize` what they decode to, so both read alike.
-pub fn push_normals(sink: &mut Sink, normals: &[[f32; 3]]) -> usize {
-    let unit: Vec<[f32; 4]> = normals.iter().map(|n| [n[0], n[1], n[2], 0.0]).collect();
+/// A texture coordinate as u16 normalized.
+fn unorm16(c: f32) -> u16 {
+    (f64::from(c).clamp(0.0, 1.0) * U16_STEPS).round() as u16
+}
+
+/// One vertex attribute of every primitive: `size` bytes per vertex (a
+/// multiple of 4, as KHR_mesh_quantization aligns vertex elements), and
+/// per primitive its bytes and its accessor (type and bounds; the view,
+/// offset and count are filled in where it is laid out).
+struct Column {
+    size: usize,
+    parts: Vec<(Vec<u8>, Value)>,
+}
+
+impl Column {
+    /// `size` bytes per element from `f`, the same accessor for every primitive.
+    fn each<T>(size: usize, data: &[&[T]], accessor: &Value, f: impl Fn(&T) -> Vec<u8>) -> Column {
+        Column { size, parts: data.iter().map(|d| (d.iter().flat_map(&f).collect(), accessor.clone())).collect() }
+    }
+}
+
+/// Lays `columns` out interleaved in one view, primitive after primitive,
+/// and returns each primitive's accessors in column order. `filtered` is
+/// what meshopt encodes instead (the OCTAHEDRAL filter's input).
+fn push_columns(sink: &mut Sink, columns: &[Column], counts: &[usize], filtered: Option<Vec<u8>>) -> Vec<Vec<usize>> {
+    let stride: usize = columns.iter().map(|c| c.size).sum();
+    let total: usize = counts.iter().sum();
+    let mut bytes = Vec::with_capacity(stride * total);
+    for (p, &n) in counts.iter().enumerate() {
+        for v in 0..n {
+            for c in columns {
+                bytes.extend_from_slice(&c.parts[p].0[v * c.size..(v + 1) * c.size]);
+            }
+        }
+    }
+    let view = push_view(sink, &bytes, Some(stride));
+    sink.streams.push(Stream { view, count: total, stride, triangles: false, vertices: total, filtered });
+    let mut first = 0;
+    let mut out = Vec::with_capacity(counts.len());
+    for (p, &n) in counts.iter().enumerate() {
+        let mut offset = first * stride;
+        let mut accessors = Vec::with_capacity(columns.len());
+        for c in columns {
+            let mut accessor = c.parts[p].1.clone();
+            accessor["bufferView"] = view.into();
+            accessor["count"] = n.into();
+            if offset > 0 {
+                accessor["byteOffset"] = offset.into();
+            }
+            sink.accessors.push(accessor);
+            accessors.push(sink.accessors.len() - 1);
+            offset += c.size;
+        }
+        out.push(accessors);
+        first += n;
+    }
+    out
+}
+
+/// POSITION: u16 steps, 8 bytes per vertex, with the primitive's bounds.
+fn position_column(frame: &Frame, prims: &[PrimData]) -> Column {
+    let parts = prims
+        .iter()
+        .map(|p| {
+            let q: Vec<[u16; 3]> = p.part.positions.iter().map(|v| frame.position(v)).collect();
+            let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
+            let (min, max): (Vec<u64>, Vec<u64>) =
+                (min.iter().map(|&v| v as u64).collect(), max.iter().map(|&v| v as u64).collect());
+            let bytes = q.iter().flat_map(|v| [v[0], v[1], v[2], 0].into_iter().flat_map(u16::to_le_bytes)).collect();
+            (bytes, json!({"componentType": 5123, "type": "VEC3", "min": min, "max": max}))
+        })
+        .collect();
+    Column { size: 8, parts }
+}
+
+/// The morph target's POSITION: whole height steps in the narrowest type
+/// that holds every primitive's (they share one view): i8 (4 bytes per
+/// vertex), i16 (8) or f32 holding the same whole numbers (12). A leaf's
+/// samples are within δ(L−1) = 2·max_error_m of its parent's surface, 32
+/// steps of max_error_m/16 (Fuji's leaves: ±31), and i8 holds its deltas
+/// without the i16 high byte that flips with every sign: meshoptimizer packs
+/// them about a quarter tighter.
+fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
+    let steps: Vec<Vec<i64>> = prims
+        .iter()
+        .map(|p| {
+            p.part.positions.iter().zip(&p.part.morph_dy).map(|(q, dy)| frame.delta_steps(q[1], q[1] + dy)).collect()
+        })
+        .collect();
+    let range = |d: &[i64]| (d.iter().copied().min().unwrap_or(0), d.iter().copied().max().unwrap_or(0));
+    let (lo, hi) = range(&steps.concat());
+    let (size, ctype) = if lo >= i64::from(i8::MIN) && hi <= i64::from(i8::MAX) {
+        (4, 5120)
+    } else if lo >= -32767 && hi <= 32767 {
+        (8, 5122)
+    } else {
+        (12, 5126)
+    };
+    let parts = steps
+        .iter()
+        .map(|d| {
+            let (lo, hi) = range(d);
+            let bytes: Vec<u8> = match size {
+                4 => d.iter().flat_map(|&v| [0, v as i8 as u8, 0, 0]).collect(),
+                8 => d.iter().flat_map(|&v| [0, v as i16, 0, 0].into_iter().flat_map(i16::to_le_bytes)).collect(),
+                _ => d.iter().flat_map(|&v| [0.0, v as f32, 0.0].into_iter().flat_map(f32::to_le_bytes)).collect(),
+            };
+            let accessor = if ctype == 5126 {
+                let (lo, hi) = (lo as f32, hi as f32);
+                json!({"componentType": ctype, "type": "VEC3", "min": [0.0, lo, 0.0], "max": [0.0, hi, 0.0]})
+            } else {
+                json!({"componentType": ctype, "type": "VEC3", "min": [0, lo, 0], "max": [0, hi, 0]})
+            };
+            (bytes, accessor)
+        })
+        .collect();
+    Column { size, parts }
+}
+
+/// Writes the primitives' quantized vertex data (KHR_mesh_quantization) in
+/// three bufferViews, each holding every primitive in turn, their
+/// accessors starting where their primitive does:
+/// - the vertices, interleaved: POSITION (u16 steps, 8 bytes), the morph
+///   delta (see [`delta_column`]), then TEXCOORD_0 (u16 normalized),
+///   TANGENT (i8 normalized) and TEXCOORD_1 where the texture has them;
+/// - NORMAL, i8 normalized, 4 bytes, in a view of its own because
+///   meshopt's OCTAHEDRAL filter applies to a whole view: `meshopt` stores
+///   the two octahedral coordinates (which its vertex codec packs tighter
+///   than three components), `quantize` what the filter decodes them to, so
+///   both read alike;
+/// - the triangles, u16. meshoptimizer's index codec keeps the triangles'
+///   order but may rotate each one's corners; both modes write the
+///   rotation it decodes to, so that `meshopt` decodes to exactly what
+///   `quantize` writes. Where the skirt's indices start again at 0 the
+///   codec restarts its vertex counter, so one stream costs no more than two.
+///
+/// Three views instead of one per stream and primitive shorten the JSON and
+/// save each meshopt stream's header and tail. Returns each primitive's
+/// `attributes`, index accessor and morph target accessor.
+pub fn write_quantized(sink: &mut Sink, frame: &Frame, prims: &[PrimData]) -> Vec<(Value, usize, usize)> {
+    let counts: Vec<usize> = prims.iter().map(|p| p.part.positions.len()).collect();
+    let mut columns = vec![position_column(frame, prims), delta_column(frame, prims)];
+    let mut names = vec!["POSITION", ""];
+    let uv_accessor = json!({"componentType": 5123, "normalized": true, "type": "VEC2"});
+    let uv_bytes = |t: &[f32; 2]| t.map(unorm16).into_iter().flat_map(u16::to_le_bytes).collect();
+    let uvs: Option<Vec<&[[f32; 2]]>> = prims.iter().map(|p| p.uv.as_deref()).collect();
+    if let Some(uv) = uvs {
+        columns.push(Column::each(4, &uv, &uv_accessor, uv_bytes));
+        names.push("TEXCOORD_0");
+    }
+    let tangents: Option<Vec<&[[f32; 4]]>> = prims.iter().map(|p| p.tangents.as_deref()).collect();
+    if let Some(t) = tangents {
+        let accessor = json!({"componentType": 5120, "normalized": true, "type": "VEC4"});
+        columns.push(Column::each(4, &t, &accessor, |t| t.map(|c| snorm8(c) as u8).to_vec()));
+        names.push("TANGENT");
+    }
+    let uv1: Option<Vec<&[[f32; 2]]>> = prims.iter().map(|p| p.uv1.as_deref()).collect();
+    if let Some(uv) = uv1 {
+        columns.push(Column::each(4, &uv, &uv_accessor, uv_bytes));
+        names.push("TEXCOORD_1");
+    }
+    let vertex = push_columns(sink, &columns, &counts, None);
+
+    // Normals through the 8-bit octahedral filter, and what it decodes to.
+    let unit: Vec<[f32; 4]> = prims.iter().flat_map(|p| p.normals.iter().map(|n| [n[0], n[1], n[2], 0.0])).collect();
     let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&unit, 8);
     let mut decoded = oct.clone();
     meshopt::decode_filter_oct(&mut decoded);
-    let bytes: Vec<u8> = decoded.iter().flat_map(|v| v.map(|c| c as u8)).collect();
-    let accessor = push_attribute(sink, &bytes, 4, json!({"componentType": 5120, "normalized": true, "type": "VEC3"}));
-    let stream = sink.streams.last_mut().expect("pushed above");
-    stream.filtered = Some(oct.iter().flat_map(|v| v.map(|c| c as u8)).collect());
-    accessor
-}
-
-/// TANGENT: i8 normalized, 4 bytes per vertex.
-pub fn push_tangents(sink: &mut Sink, tangents: &[[f32; 4]]) -> usize {
-    let bytes: Vec<u8> = tangents.iter().flat_map(|t| t.map(|c| snorm8(c) as u8)).collect();
-    push_attribute(sink, &bytes, 4, json!({"componentType": 5120, "normalized": true, "type": "VEC4"}))
-}
-
-/// TEXCOORD: u16 normalized, 4 bytes per vertex.
-pub fn push_uv(sink: &mut Sink, uv: &[[f32; 2]]) -> usize {
-    let bytes: Vec<u8> = uv
-        .iter()
-        .flat_map(|t| {
-            t.map(|c| (f64::from(c).clamp(0.0, 1.0) * U16_STEPS).round() as u16).into_iter().flat_map(u16::to_le_bytes)
-        })
-        .collect();
-    push_attribute(sink, &bytes, 4, json!({"componentType": 5123, "normalized": true, "type": "VEC2"}))
-}
-
-/// Triangle indices, u16. meshoptimizer's index codec keeps the triangles'
-/// order but may rotate each one's corners; both modes write the rotation
-/// it decodes to, so that `meshopt` decodes to exactly what `quantize` writes.
-pub fn push_indices(sink: &mut Sink, indices: &[u32], vertices: usize) -> usize {
-    let encoded = meshopt::encode_index_buffer(indices, vertices).expect("a triangle list");
-    let indices: Vec<u32> = meshopt::decode_index_buffer(&encoded, indices.len()).expect("just encoded");
-    align4(&mut sink.bin);
-    let offset = sink.bin.len();
-    for &i in &indices {
-        sink.bin.extend_from_slice(&(i as u16).to_le_bytes());
+    let mut first = 0;
+    let mut parts = Vec::with_capacity(prims.len());
+    for &n in &counts {
+        let bytes = decoded[first..first + n].iter().flat_map(|v| v.map(|c| c as u8)).collect();
+        parts.push((bytes, json!({"componentType": 5120, "normalized": true, "type": "VEC3"})));
+        first += n;
     }
-    sink.views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len() * 2, "target": 34963}));
-    let view = sink.views.len() - 1;
-    sink.streams.push(Stream { view, count: indices.len(), stride: 2, triangles: true, vertices, filtered: None });
-    sink.accessors.push(json!({"bufferView": view, "componentType": 5123, "count": indices.len(), "type": "SCALAR"}));
-    sink.accessors.len() - 1
+    let filtered = oct.iter().flat_map(|v| v.map(|c| c as u8)).collect();
+    let normal = push_columns(sink, &[Column { size: 4, parts }], &counts, Some(filtered));
+
+    // Triangles, as the index codec rotates them.
+    let all: Vec<u32> = prims.iter().flat_map(|p| p.part.indices.iter().copied()).collect();
+    let vertices = counts.iter().copied().max().unwrap_or(0);
+    let encoded = meshopt::encode_index_buffer(&all, vertices).expect("a triangle list");
+    let rotated: Vec<u32> = meshopt::decode_index_buffer(&encoded, all.len()).expect("just encoded");
+    let bytes: Vec<u8> = rotated.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect();
+    let view = push_view(sink, &bytes, None);
+    sink.streams.push(Stream { view, count: all.len(), stride: 2, triangles: true, vertices, filtered: None });
+    let mut first = 0;
+    let mut out = Vec::with_capacity(prims.len());
+    for (p, prim) in prims.iter().enumerate() {
+        let n = prim.part.indices.len();
+        let mut accessor = json!({"bufferView": view, "componentType": 5123, "count": n, "type": "SCALAR"});
+        if first > 0 {
+            accessor["byteOffset"] = (2 * first).into();
+        }
+        sink.accessors.push(accessor);
+        first += n;
+        let mut attributes = json!({"NORMAL": normal[p][0]});
+        for (name, &a) in names.iter().zip(&vertex[p]) {
+            if !name.is_empty() {
+                attributes[*name] = a.into();
+            }
+        }
+        out.push((attributes, sink.accessors.len() - 1, vertex[p][1]));
+    }
+    out
 }
 
 /// Compresses every stream with meshoptimizer (EXT_meshopt_compression):
@@ -391,9 +522,12 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
         align4(&mut packed);
         view["buffer"] = 1.into();
         let mut ext = json!({
-            "buffer": 0, "byteOffset": packed.len(), "byteLength": encoded.len(), "byteStride": s.stride,
+            "buffer": 0, "byteLength": encoded.len(), "byteStride": s.stride,
             "count": s.count, "mode": if s.triangles { "TRIANGLES" } else { "ATTRIBUTES" },
         });
+        if !packed.is_empty() {
+            ext["byteOffset"] = packed.len().into();
+        }
         if s.filtered.is_some() {
             ext["filter"] = "OCTAHEDRAL".into();
         }
@@ -403,6 +537,11 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
     align4(&mut packed);
     std::mem::replace(&mut sink.bin, packed).len()
 }
+
+/// The vertex strides the writer makes and the reader takes: multiples of 4
+/// up to 32 bytes (POSITION 8, a morph delta up to 12, three 4-byte
+/// texture attributes).
+const MAX_STRIDE: usize = 32;
 
 /// meshoptimizer's vertex codec, version 0 (the one EXT_meshopt_compression names).
 fn encode_vertices(raw: &[u8], stride: usize) -> Vec<u8> {
@@ -415,7 +554,39 @@ fn encode_vertices(raw: &[u8], stride: usize) -> Vec<u8> {
         8 => enc::<8>(raw),
         12 => enc::<12>(raw),
         16 => enc::<16>(raw),
-        _ => unreachable!("vertex strides are 4, 8, 12 or 16 bytes"),
+        20 => enc::<20>(raw),
+        24 => enc::<24>(raw),
+        28 => enc::<28>(raw),
+        MAX_STRIDE => enc::<MAX_STRIDE>(raw),
+        _ => unreachable!("vertex strides are multiples of 4 bytes up to {MAX_STRIDE}"),
+    }
+}
+
+/// meshoptimizer's vertex decoder for `count` elements of `stride` bytes.
+fn decode_vertices(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, String> {
+    /// One element: `[u8; N]` has no `Default` for every `N`.
+    #[derive(Clone, Copy)]
+    #[repr(transparent)]
+    struct Element<const N: usize>([u8; N]);
+    impl<const N: usize> Default for Element<N> {
+        fn default() -> Self {
+            Element([0; N])
+        }
+    }
+    fn dec<const N: usize>(data: &[u8], count: usize) -> Result<Vec<u8>, String> {
+        let v = meshopt::decode_vertex_buffer::<Element<N>>(data, count).map_err(|e| format!("{e:?}"))?;
+        Ok(v.iter().flat_map(|e| e.0).collect())
+    }
+    match stride {
+        4 => dec::<4>(data, count),
+        8 => dec::<8>(data, count),
+        12 => dec::<12>(data, count),
+        16 => dec::<16>(data, count),
+        20 => dec::<20>(data, count),
+        24 => dec::<24>(data, count),
+        28 => dec::<28>(data, count),
+        MAX_STRIDE => dec::<MAX_STRIDE>(data, count),
+        _ => Err(format!("stride {stride} is not a multiple of 4 up to {MAX_STRIDE}")),
     }
 }
 
@@ -541,18 +712,8 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                 let data = slice(num(&m["byteOffset"]).unwrap_or(0), num(&m["byteLength"]).unwrap_or(0))?;
                 let bad = |e: meshopt::Error| format!("bufferView {v}: meshopt cannot decode it: {e:?}");
                 let decoded: Vec<u8> = match (m["mode"].as_str(), stride) {
-                    (Some("ATTRIBUTES"), 4) => {
-                        meshopt::decode_vertex_buffer::<[u8; 4]>(data, count).map_err(bad)?.concat()
-                    }
-                    (Some("ATTRIBUTES"), 8) => {
-                        meshopt::decode_vertex_buffer::<[u8; 8]>(data, count).map_err(bad)?.concat()
-                    }
-                    (Some("ATTRIBUTES"), 12) => {
-                        meshopt::decode_vertex_buffer::<[u8; 12]>(data, count).map_err(bad)?.concat()
-                    }
-                    (Some("ATTRIBUTES"), 16) => {
-                        meshopt::decode_vertex_buffer::<[u8; 16]>(data, count).map_err(bad)?.concat()
-                    }
+                    (Some("ATTRIBUTES"), _) => decode_vertices(data, count, stride)
+                        .map_err(|e| format!("bufferView {v}: meshopt cannot decode it: {e}"))?,
                     (Some("TRIANGLES"), 2) => meshopt::decode_index_buffer::<u16>(data, count)
                         .map_err(bad)?
                         .into_iter()

@@ -13,15 +13,16 @@
 //! Files are read back with the `gltf` crate (verify, inspect, tests).
 //!
 //! With `compress = "quantize"` or `"meshopt"` the vertex data is written by
-//! [`super::compress`] instead (KHR_mesh_quantization, then
-//! EXT_meshopt_compression), and the node also carries a `scale`; the rest
-//! of the document is the same.
+//! [`super::compress`] instead (KHR_mesh_quantization in three bufferViews
+//! the surface and skirt share, then EXT_meshopt_compression), and the node
+//! also carries a `scale`; the rest of the document is the same but for the
+//! primitive mode, left at its default.
 
 use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
-use crate::output::compress::{self, Frame, Quantization, QuantizeError, Sink};
+use crate::output::compress::{self, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
@@ -60,62 +61,73 @@ pub fn texcoord(p: &[f64; 3], fp: ((u32, u32), (u32, u32)), spacing_m: [f64; 2],
     [along(p[0] / spacing_m[0], x0, x1, texels[0]), along(p[2] / spacing_m[1], z0, z1, texels[1])]
 }
 
+/// One primitive as the writers take it: a part in vertex-cache order and
+/// what the texture adds to it.
+pub struct PrimData<'a> {
+    /// World positions, morph offsets and triangles.
+    pub part: &'a Part,
+    /// NORMAL: the part's own, or +y where a normal map carries the shading.
+    pub normals: Vec<[f32; 3]>,
+    /// TEXCOORD_0, on a textured chunk.
+    pub uv: Option<Vec<[f32; 2]>>,
+    /// TANGENT (+x), with a normal map.
+    pub tangents: Option<Vec<[f32; 4]>>,
+    /// TEXCOORD_1, with a normal map whose size differs from the colour tile's.
+    pub uv1: Option<Vec<[f32; 2]>>,
+}
+
 /// Encodes `chunk` (with its texture tile, if any) as a .glb file. Fails
 /// only when quantized vertices fall off the planned grid.
 pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext) -> Result<Vec<u8>, QuantizeError> {
     let frame = ctx.quantization.map(|q| q.frame(chunk)).transpose()?;
     let origin = frame.as_ref().map_or_else(|| chunk_origin(chunk), |f| f.translation);
-    let mut sink = Sink::default();
-    let mut prims: Vec<Value> = Vec::new();
-    for (role, part) in [("surface", &chunk.surface), ("skirt", &chunk.skirt)] {
-        if part.indices.is_empty() {
-            continue;
-        }
-        let p = optimise(part, ctx.vertex_cache);
-        // With a normal map, the map carries the shading and the vertices
-        // fix its tangent frame to the map's axes (see `texture`).
-        let flat_frame = texture.is_some_and(|t| t.normal.is_some());
-        let up: Vec<[f32; 3]>;
-        let normals = if flat_frame {
-            up = vec![[0.0, 1.0, 0.0]; p.positions.len()];
-            &up
-        } else {
-            &p.normals
-        };
-        let uv = |img: &TileImage| -> Vec<[f32; 2]> {
-            p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
-        };
-        let (mut attributes, idx, dlt) = match &frame {
-            None => float_attributes(&mut sink, &p, normals, origin),
-            Some(f) => quantized_attributes(&mut sink, &p, normals, f),
-        };
-        if let Some(tex) = texture {
-            let push_uv = |sink: &mut Sink, uv: &[[f32; 2]]| match frame {
-                None => push_vec2(&mut sink.bin, &mut sink.views, &mut sink.accessors, uv),
-                Some(_) => compress::push_uv(sink, uv),
+    let parts: Vec<(&str, Part)> = [("surface", &chunk.surface), ("skirt", &chunk.skirt)]
+        .into_iter()
+        .filter(|(_, part)| !part.indices.is_empty())
+        .map(|(role, part)| (role, optimise(part, ctx.vertex_cache)))
+        .collect();
+    // With a normal map, the map carries the shading and the vertices fix
+    // its tangent frame to the map's axes (see `texture`).
+    let normal_map = texture.and_then(|t| t.normal.as_ref());
+    let prims: Vec<PrimData> = parts
+        .iter()
+        .map(|(_, p)| {
+            let n = p.positions.len();
+            let uv = |img: &TileImage| -> Vec<[f32; 2]> {
+                p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
             };
-            attributes["TEXCOORD_0"] = push_uv(&mut sink, &uv(&tex.colour)).into();
-            if let Some(nm) = &tex.normal {
-                let east = vec![[1.0f32, 0.0, 0.0, 1.0]; p.positions.len()];
-                attributes["TANGENT"] = match frame {
-                    None => push_vec4(&mut sink.bin, &mut sink.views, &mut sink.accessors, &east),
-                    Some(_) => compress::push_tangents(&mut sink, &east),
-                }
-                .into();
-                if nm.texels != tex.colour.texels {
-                    attributes["TEXCOORD_1"] = push_uv(&mut sink, &uv(nm)).into();
-                }
+            PrimData {
+                part: p,
+                normals: if normal_map.is_some() { vec![[0.0, 1.0, 0.0]; n] } else { p.normals.clone() },
+                uv: texture.map(|t| uv(&t.colour)),
+                tangents: normal_map.map(|_| vec![[1.0, 0.0, 0.0, 1.0]; n]),
+                uv1: texture.and_then(|t| t.normal.as_ref().filter(|nm| nm.texels != t.colour.texels)).map(uv),
             }
-        }
-        prims.push(json!({
-            "attributes": attributes,
-            "indices": idx,
-            "material": 0,
-            "mode": 4,
-            "targets": [{"POSITION": dlt}],
-            "extras": {"role": role},
-        }));
-    }
+        })
+        .collect();
+    let mut sink = Sink::default();
+    let written = match &frame {
+        None => prims.iter().map(|p| float_attributes(&mut sink, p, origin)).collect(),
+        Some(f) => compress::write_quantized(&mut sink, f, &prims),
+    };
+    let prims: Vec<Value> = parts
+        .iter()
+        .zip(written)
+        .map(|((role, _), (attributes, idx, dlt))| {
+            let mut prim = json!({
+                "attributes": attributes,
+                "indices": idx,
+                "material": 0,
+                "targets": [{"POSITION": dlt}],
+                "extras": {"role": role},
+            });
+            // TRIANGLES, the default, spelled out only where bytes are not the point.
+            if frame.is_none() {
+                prim["mode"] = 4.into();
+            }
+            prim
+        })
+        .collect();
     let fallback = (frame.is_some() && ctx.meshopt).then(|| compress::meshopt_pack(&mut sink));
     let Sink { mut bin, mut views, accessors, .. } = sink;
     let k = chunk.key;
@@ -202,26 +214,28 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     Ok(glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin))
 }
 
-/// POSITION (chunk-local f32), NORMAL, the morph target and the indices as
-/// the portable float output writes them.
-fn float_attributes(sink: &mut Sink, p: &Part, normals: &[[f32; 3]], origin: [f64; 3]) -> (Value, usize, usize) {
+/// POSITION (chunk-local f32), NORMAL, the morph target, the indices and
+/// then the texture's attributes, as the portable float output writes them.
+fn float_attributes(sink: &mut Sink, prim: &PrimData, origin: [f64; 3]) -> (Value, usize, usize) {
     let Sink { bin, views, accessors, .. } = sink;
+    let p = prim.part;
     let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
     let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
     let pos = push_vec3(bin, views, accessors, &local);
-    let nrm = push_vec3(bin, views, accessors, normals);
+    let nrm = push_vec3(bin, views, accessors, &prim.normals);
     let dlt = push_vec3(bin, views, accessors, &delta);
     let idx = push_indices(bin, views, accessors, &p.indices);
-    (json!({"POSITION": pos, "NORMAL": nrm}), idx, dlt)
-}
-
-/// The same, quantized on the chunk's grid (KHR_mesh_quantization).
-fn quantized_attributes(sink: &mut Sink, p: &Part, normals: &[[f32; 3]], frame: &Frame) -> (Value, usize, usize) {
-    let pos = compress::push_positions(sink, frame, &p.positions);
-    let nrm = compress::push_normals(sink, normals);
-    let dlt = compress::push_deltas(sink, frame, &p.positions, &p.morph_dy);
-    let idx = compress::push_indices(sink, &p.indices, p.positions.len());
-    (json!({"POSITION": pos, "NORMAL": nrm}), idx, dlt)
+    let mut attributes = json!({"POSITION": pos, "NORMAL": nrm});
+    if let Some(uv) = &prim.uv {
+        attributes["TEXCOORD_0"] = push_vec2(bin, views, accessors, uv).into();
+    }
+    if let Some(t) = &prim.tangents {
+        attributes["TANGENT"] = push_vec4(bin, views, accessors, t).into();
+    }
+    if let Some(uv) = &prim.uv1 {
+        attributes["TEXCOORD_1"] = push_vec2(bin, views, accessors, uv).into();
+    }
+    (attributes, idx, dlt)
 }
 
 /// Vertex-cache then vertex-fetch order (meshoptimizer); same triangles.
@@ -230,6 +244,7 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
     let indices = match order {
         VertexCache::Fast => meshopt::optimize_vertex_cache_fifo(&p.indices, n, 16),
         VertexCache::Best => meshopt::optimize_vertex_cache(&p.indices, n),
+        VertexCache::Strip => meshopt::optimize_vertex_cache_strip(&p.indices, n),
     };
     let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
     let used = remap.iter().filter(|&&r| r != u32::MAX).count();
