@@ -407,12 +407,7 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
     let mut density_k = |k: usize, delta_m: f64| *by_k[k.min(31)].get_or_insert_with(|| density(delta_m));
     // Every distinct tree: its leaf width is the widest chunk after d splits.
     let full = ChunkTree::plan(grid.width, grid.height, max_error_m, 1, 0);
-    let widths: Vec<u32> = (0..full.xs.len())
-        .map(|d| {
-            let widest = |spans: &[(u32, u32)]| spans.iter().map(|s| s.1 - s.0).max().unwrap_or(0);
-            widest(&full.xs[d]).max(widest(&full.zs[d]))
-        })
-        .collect();
+    let widths: Vec<u32> = (0..=full.depth()).map(|d| full.widest_cells(d).into_iter().max().unwrap_or(0)).collect();
     let mut candidates: Vec<u32> = widths.iter().copied().filter(|&c| c >= 32).collect();
     if candidates.is_empty() {
         candidates.push(32);
@@ -595,11 +590,11 @@ impl Run<'_> {
     /// memory holds a few root-to-leaf paths rather than whole levels.
     fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
         let tree = self.tree;
-        let level_first = (0..=tree.depth() as usize)
+        let level_first = (0..=tree.depth())
             .take_while(|&l| {
-                let widest = |spans: &[(u32, u32)]| spans.iter().map(|s| (s.1 - s.0 + 1) as usize).max().unwrap_or(0);
-                widest(&tree.xs[l]) * widest(&tree.zs[l]) > MAX_VERTICES
-                    && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+                let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
+                let l = l as usize;
+                wx * wz > MAX_VERTICES && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
             })
             .count();
         let mut done = Vec::new();

@@ -60,7 +60,6 @@ impl ChunkTree {
         let nz = if hc > wc { (f64::from(hc) / f64::from(wc)).round().max(1.0) as u32 } else { 1 };
         let mut xs = vec![split_even(wc, nx)];
         let mut zs = vec![split_even(hc, nz)];
-        let widest = |l: &Vec<Span>| l.iter().map(|s| s.1 - s.0).max().unwrap_or(0);
         loop {
             let (x, z) = (xs.last().unwrap(), zs.last().unwrap());
             if widest(x).max(widest(z)) <= leaf_cells || (widest(x) < 2 && widest(z) < 2) {
@@ -85,6 +84,11 @@ impl ChunkTree {
     pub fn splits(&self, level: u32) -> bool {
         let l = level as usize;
         l + 1 < self.xs.len() && (self.xs[l + 1] != self.xs[l] || self.zs[l + 1] != self.zs[l])
+    }
+
+    /// The widest chunk of `level` in cells, `[along x, along z]`.
+    pub fn widest_cells(&self, level: u32) -> [u32; 2] {
+        [widest(&self.xs[level as usize]), widest(&self.zs[level as usize])]
     }
 
     /// Deepest level index.
@@ -142,6 +146,11 @@ impl ChunkTree {
 /// Where a span is cut for the next level (its integer midpoint), if at all.
 pub fn midpoint(s: Span) -> Option<u32> {
     (s.1 - s.0 >= 2).then(|| s.0 + (s.1 - s.0) / 2)
+}
+
+/// The widest of `spans`, in cells.
+fn widest(spans: &[Span]) -> u32 {
+    spans.iter().map(|s| s.1 - s.0).max().unwrap_or(0)
 }
 
 fn split_span(s: Span) -> Vec<Span> {

@@ -131,10 +131,10 @@ impl Quantization {
             return Err(QuantizeError::Relief { relief_m, step_m: step, quarter_m: max_error_m / 4.0 });
         }
         let mut shift = Vec::with_capacity(tree.xs.len());
-        for (level, (xs, zs)) in tree.xs.iter().zip(&tree.zs).enumerate() {
-            let cells = xs.iter().chain(zs).map(|s| s.1 - s.0).max().unwrap_or(1).max(1);
+        for level in 0..=tree.depth() {
+            let cells = tree.widest_cells(level).into_iter().max().unwrap_or(1).max(1);
             if f64::from(cells) > U16_STEPS {
-                return Err(QuantizeError::TooWide { level: level as u32, cells });
+                return Err(QuantizeError::TooWide { level, cells });
             }
             shift.push((U16_STEPS / f64::from(cells)).log2().floor().min(20.0) as u32);
         }
