@@ -239,13 +239,9 @@ def main():
     ap.add_argument("--render", help="write a small render of the root chunk here")
     args = ap.parse_args()
     print(f"blender {bpy.app.version_string}, glTF importer {glTF_version()}")
-    ts, picks = glbref.pick_chunks(args.tileset)
-    failures = []
-    for label, key, parent in picks:
-        try:
-            check_chunk(args.tileset, ts, label, key, parent, failures)
-        except Exception as e:  # an importer exception is a finding, not a crash
-            failures.append(f"{label} {glbref.name(key)}: {type(e).__name__}: {e}")
+    picks, failures = glbref.check_picks(
+        args.tileset, lambda ts, label, key, parent, failures: check_chunk(args.tileset, ts, label, key, parent, failures)
+    )
     if args.render:
         try:
             render(args.tileset, picks[0][1], args.render)

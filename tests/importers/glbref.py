@@ -268,6 +268,20 @@ def pick_chunks(tileset_dir):
     return ts, [(label, k, parent[k]) for label, k in chosen if k is not None]
 
 
+def check_picks(tileset_dir, check):
+    """Runs `check(ts, label, key, parent, failures)` on every chunk
+    `pick_chunks` chooses; an exception from the reader under test is a
+    finding, not a crash. Returns (picks, failures)."""
+    ts, picks = pick_chunks(tileset_dir)
+    failures = []
+    for label, key, parent in picks:
+        try:
+            check(ts, label, key, parent, failures)
+        except Exception as e:
+            failures.append(f"{label} {name(key)}: {type(e).__name__}: {e}")
+    return picks, failures
+
+
 def tile_box(ts, key):
     """(min, max) corners, z-up tileset frame, of the tile `key`'s
     boundingVolume.box in tileset.json (an axis-aligned box, as written)."""

@@ -149,13 +149,9 @@ def main():
     ap.add_argument("--has-nodata", action="store_true", help="the DEM has voids: holes are not failures")
     args = ap.parse_args()
     print(f"pymeshlab {importlib.metadata.version('pymeshlab')}")
-    ts, picks = glbref.pick_chunks(args.tileset)
-    failures = []
-    for label, key, _parent in picks:
-        try:
-            check_chunk(args.tileset, ts, label, key, args.has_nodata, failures)
-        except Exception as e:  # a reader exception is a finding, not a crash
-            failures.append(f"{label} {glbref.name(key)}: {type(e).__name__}: {e}")
+    picks, failures = glbref.check_picks(
+        args.tileset, lambda ts, label, key, _parent, failures: check_chunk(args.tileset, ts, label, key, args.has_nodata, failures)
+    )
     for f in failures:
         print(f"meshlab FAIL {f}")
     print(f"meshlab: {len(picks)} chunks, {len(failures)} failures")

@@ -38,37 +38,34 @@ fn place(pos: vec3<f32>, morph_dy: f32) -> vec3<f32> {
     return pos + vec3<f32>(0.0, chunk.origin.w * morph_dy, 0.0) + chunk.origin.xyz;
 }
 
-fn vertex(pos: vec3<f32>, normal: vec3<f32>, uv: vec2<f32>, morph_dy: f32, role: f32) -> VOut {
+// One vertex as both pipelines read it.
+struct VIn {
+    @location(0) pos: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+    @location(3) morph_dy: f32,
+    @location(4) role: f32,
+};
+
+fn vertex(v: VIn) -> VOut {
     var out: VOut;
-    let p = place(pos, morph_dy);
+    let p = place(v.pos, v.morph_dy);
     out.clip = frame.view_proj * vec4<f32>(p, 1.0);
     out.rel = p;
-    out.normal = normal;
-    out.uv = uv;
-    out.role = role;
+    out.normal = v.normal;
+    out.uv = v.uv;
+    out.role = v.role;
     return out;
 }
 
 @vertex
-fn vs_main(
-    @location(0) pos: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) morph_dy: f32,
-    @location(4) role: f32,
-) -> VOut {
-    return vertex(pos, normal, uv, morph_dy, role);
+fn vs_main(v: VIn) -> VOut {
+    return vertex(v);
 }
 
 @vertex
-fn vs_wire(
-    @location(0) pos: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) uv: vec2<f32>,
-    @location(3) morph_dy: f32,
-    @location(4) role: f32,
-) -> VOut {
-    var out = vertex(pos, normal, uv, morph_dy, role);
+fn vs_wire(v: VIn) -> VOut {
+    var out = vertex(v);
     // Reversed Z: pull the line toward the eye so the surface does not hide it.
     out.clip.z = out.clip.z + frame.flags.z * out.clip.w;
     return out;
