@@ -24,6 +24,7 @@
 //! | int16 −32767…32767, uint16 0…65535 | exact at full density; boxes reach 65 535 m |
 //! | bathymetry to −10 994 m | verifies; boxes below −10 km |
 //! | max_error 1 mm on whole metres / above the relief | exact / one chunk |
+//! | a bump exactly max_error high / 1/64 m higher | not a vertex, error exactly δ / meshed |
 
 use std::path::{Path, PathBuf};
 
@@ -538,10 +539,10 @@ fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
     }
 }
 
-/// Was a bug in the mesher (`mesh/decimate.rs`, `build_target` as used by
-/// `refine_line`): borders are meant to be decided from the line's own
-/// samples so that neighbours agree, but the 1-D refinement compares each
-/// sample against `0.98·δ − 4ε·relief`, and the relief is the chunk's own.
+/// Was a bug in the mesher (`mesh/decimate.rs`, the target `refine_line`
+/// used): borders are meant to be decided from the line's own samples so
+/// that neighbours agree, but the 1-D refinement compared each sample
+/// against `0.98·δ − 4ε·relief`, and the relief was the chunk's own.
 /// Two neighbours of different relief therefore split a shared border
 /// differently whenever a border sample's error lies between their targets:
 /// a T-junction (found by `properties`; see
@@ -564,6 +565,32 @@ fn neighbours_of_different_relief_split_their_shared_border_alike() {
         let b = survives(&dem, config(max_error_m, 200));
         assert_eq!(b.report.levels[0].chunks, 2);
     }
+}
+
+/// Was a cost, not a bug (issue 5): the mesher met 0.98·δ everywhere, to
+/// leave room for f32 rounding, so on integer heights every sample exactly
+/// δ off became a vertex, some 10 % more triangles than a TIN to δ. Sample
+/// corners are now written exactly and only triangles at cut points keep a
+/// margin: a bump exactly δ high on a plane is not a vertex and `verify`
+/// measures exactly δ there, while a bump 1/64 m higher is meshed.
+#[test]
+fn samples_exactly_max_error_off_stay_out_of_the_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bump = |high: f64| move |i: usize, j: usize| if (i, j) == (21, 27) { 101.0 + high } else { 100.0 };
+    let dem = write_asc(tmp.path(), "exact.asc", 65, 65, bump(0.0));
+    // Leaves of 16 cells allow three levels: the root already meets δ.
+    let exact = survives(&dem, config(1.0, 16));
+    assert_eq!(exact.report.levels.len(), 1, "{:#?}", exact.report.levels);
+    // Corners, and the children's dividing lines the root carries.
+    assert!(leaf(&exact).vertices <= 9, "a bump exactly δ high is within δ: {} vertices", leaf(&exact).vertices);
+    assert_eq!(leaf(&exact).max_error_m, 1.0);
+    assert_eq!(exact.verify.levels[&0].max_error_m, 1.0);
+
+    let dem = write_asc(tmp.path(), "over.asc", 65, 65, bump(1.0 / 64.0));
+    let over = survives(&dem, config(1.0, 16));
+    let vertices = |b: &Built| b.report.levels.iter().map(|l| l.vertices).sum::<usize>();
+    assert!(vertices(&over) > vertices(&exact), "a bump 1/64 m over δ is meshed");
+    assert!(leaf(&over).max_error_m < 1.0);
 }
 
 // ----------------------------------------------------------------- writers

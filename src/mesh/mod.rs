@@ -43,6 +43,9 @@ pub struct ChunkMesh {
     pub kept: Vec<bool>,
     /// Largest |surface − sample| over the footprint's valid samples, metres.
     pub max_error_m: f64,
+    /// The same over the triangles with a cut point for a corner, which are
+    /// held to a tighter target ([`decimate::Targets`]).
+    pub max_error_near_cuts_m: f64,
     /// Largest minus smallest valid height in the footprint, metres.
     pub relief_m: f64,
     /// Per triangle, what its last scan found (`None`: not known to hold):
@@ -54,7 +57,8 @@ pub struct ChunkMesh {
 impl ChunkMesh {
     /// Whether this mesh already meets `delta_m` with room for f32 output.
     pub fn meets(&self, delta_m: f64) -> bool {
-        self.max_error_m <= decimate::build_target(delta_m, self.relief_m)
+        let t = decimate::Targets::new(delta_m, self.relief_m);
+        self.max_error_m <= t.exact && self.max_error_near_cuts_m <= t.cut
     }
 }
 

@@ -39,14 +39,22 @@ pub struct GlbContext<'a> {
     pub meshopt: bool,
 }
 
-/// The chunk-local origin: the chunk's west/north corner at its lowest point.
+/// The chunk-local origin: the chunk's west/north corner, and vertically the
+/// lowest DEM height among its vertices if every DEM height (an f32, as the
+/// grid holds it) minus that is exact in f32, else 0 (where it always is).
+/// The mesher counts on sample heights being written exactly
+/// ([`crate::mesh::decimate::Targets`]); only cut points and skirt bottoms,
+/// whose heights are not DEM samples, round.
 pub fn chunk_origin(chunk: &Chunk) -> [f64; 3] {
     let mut o = [f64::INFINITY; 3];
     for p in chunk.surface.positions.iter().chain(&chunk.skirt.positions) {
-        for a in 0..3 {
-            o[a] = o[a].min(p[a]);
-        }
+        o[0] = o[0].min(p[0]);
+        o[2] = o[2].min(p[2]);
     }
+    let samples = || chunk.surface.positions.iter().map(|p| p[1]).filter(|&h| f64::from(h as f32) == h);
+    let low = samples().fold(f64::INFINITY, f64::min);
+    let exact = |y0: f64| samples().all(|h| f64::from((h - y0) as f32) == h - y0);
+    o[1] = if low.is_finite() && exact(low) { low } else { 0.0 };
     o
 }
 
