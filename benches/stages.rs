@@ -91,7 +91,7 @@ fn stages(c: &mut Criterion) {
         generator: "bench",
         vertex_cache: VertexCache::Fast,
         quantization: None,
-        meshopt: false,
+        meshopt: None,
     };
     for n in SIZES {
         let part = assemble(&grid(&hf), hf.spacing_m, &chunk(&hf, n), 4.0 * DELTA_M);

@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::output::compress::Meshopt;
+
 /// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -64,8 +66,10 @@ pub struct Config {
     /// How vertex data is stored in the .glb (see `output::compress`):
     /// `none` (f32, opens everywhere), `quantize` (KHR_mesh_quantization:
     /// integer positions on a world-aligned grid whose rounding is taken out
-    /// of every level's δ) or `meshopt` (quantize, then
-    /// EXT_meshopt_compression). Default `none`.
+    /// of every level's δ), `meshopt` (quantize, then
+    /// EXT_meshopt_compression) or `meshopt-v1` (quantize, then
+    /// KHR_meshopt_compression with the version 1 vertex codec). Default
+    /// `none`.
     pub compress: Compress,
 }
 
@@ -83,14 +87,30 @@ pub enum Compress {
     /// morph deltas; u16 normalized texture coordinates.
     Quantize,
     /// `Quantize`, then every vertex and index stream through
-    /// meshoptimizer's codecs (EXT_meshopt_compression, required).
+    /// meshoptimizer's codecs (EXT_meshopt_compression, required; vertex
+    /// codec version 0), for every meshopt reader.
     Meshopt,
+    /// `Quantize`, then every vertex and index stream through
+    /// meshoptimizer's codecs (KHR_meshopt_compression, required; vertex
+    /// codec version 1) and a leaner JSON: the smallest output, for readers
+    /// that know KHR_meshopt_compression (CesiumJS from 1.143).
+    #[serde(rename = "meshopt-v1")]
+    MeshoptV1,
 }
 
 impl Compress {
-    /// Whether vertex data is quantized (`quantize` and `meshopt`).
+    /// Whether vertex data is quantized (every mode but `none`).
     pub fn quantizes(self) -> bool {
         self != Compress::None
+    }
+
+    /// The meshoptimizer extension the quantized streams are packed for.
+    pub fn meshopt(self) -> Option<Meshopt> {
+        match self {
+            Compress::None | Compress::Quantize => None,
+            Compress::Meshopt => Some(Meshopt::Ext),
+            Compress::MeshoptV1 => Some(Meshopt::Khr),
+        }
     }
 }
 
@@ -181,12 +201,12 @@ pub enum ConfigError {
 
 impl Config {
     /// The triangle order in effect: `vertex_cache`, or when it is unset
-    /// `Strip` for `meshopt` output (1.2 bytes per surface vertex smaller
-    /// than `Fast` on Fuji, 1.9 on California at 1 m, where the build takes
-    /// a quarter longer) and `Fast` otherwise.
+    /// `Strip` for `meshopt` and `meshopt-v1` output (1.2 bytes per surface
+    /// vertex smaller than `Fast` on Fuji, 1.9 on California at 1 m, where
+    /// the build takes a quarter longer) and `Fast` otherwise.
     pub fn triangle_order(&self) -> VertexCache {
         self.vertex_cache.unwrap_or(match self.compress {
-            Compress::Meshopt => VertexCache::Strip,
+            Compress::Meshopt | Compress::MeshoptV1 => VertexCache::Strip,
             Compress::None | Compress::Quantize => VertexCache::Fast,
         })
     }
