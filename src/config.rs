@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::output::compress::Meshopt;
+use crate::output::compress::{Meshopt, NormalEncoding};
 
 /// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -71,7 +71,22 @@ pub struct Config {
     /// KHR_meshopt_compression with the version 1 vertex codec). Default
     /// `none`.
     pub compress: Compress,
+    /// Bits per octahedral coordinate of quantized normals (meshoptimizer's
+    /// OCTAHEDRAL filter in i8 components), each normal stored as the
+    /// lattice point whose decoded normal is nearest it: fewer bits pack
+    /// tighter and shade coarser (worst 0.71° at 8 bits, 1.45° at 7, 2.58° at
+    /// 6 on Fuji). Range: 2..=8. Default: unset, which means
+    /// [`NORMAL_BITS_V1`] with `compress = "meshopt-v1"` and, for `quantize`
+    /// and `meshopt`, 8 bits rounded as meshoptimizer's encoder rounds them,
+    /// as earlier versions wrote them (worst 1.14°)
+    /// ([`Config::normal_encoding`]). Unused with `compress = "none"`.
+    pub normal_bits: Option<u32>,
 }
+
+/// The octahedral bits of `meshopt-v1` normals: the fewest whose decoded
+/// normals stay within 1° of the exact ones (0.71° worst on Fuji, 1.45° at
+/// 7 bits; README, "Compression").
+pub const NORMAL_BITS_V1: u32 = 8;
 
 /// How a chunk's vertex data is stored. Measured figures are in README,
 /// "Compression".
@@ -92,8 +107,9 @@ pub enum Compress {
     Meshopt,
     /// `Quantize`, then every vertex and index stream through
     /// meshoptimizer's codecs (KHR_meshopt_compression, required; vertex
-    /// codec version 1) and a leaner JSON: the smallest output, for readers
-    /// that know KHR_meshopt_compression (CesiumJS from 1.143).
+    /// codec version 1), normals the nearest [`NORMAL_BITS_V1`]-bit
+    /// octahedral lattice points, and a leaner JSON: the smallest output,
+    /// for readers that know KHR_meshopt_compression (CesiumJS from 1.143).
     #[serde(rename = "meshopt-v1")]
     MeshoptV1,
 }
@@ -164,6 +180,7 @@ impl Default for Config {
             sun_elevation_deg: 45.0,
             normal_map: false,
             compress: Compress::None,
+            normal_bits: None,
         }
     }
 }
@@ -211,6 +228,18 @@ impl Config {
         })
     }
 
+    /// How quantized normals are chosen: the nearest of `normal_bits`, or
+    /// when it is unset of [`NORMAL_BITS_V1`] for `meshopt-v1`, and
+    /// meshoptimizer's own 8-bit rounding for `quantize` and `meshopt`
+    /// (whose files stay as earlier versions wrote them).
+    pub fn normal_encoding(&self) -> NormalEncoding {
+        match (self.normal_bits, self.compress) {
+            (Some(bits), _) => NormalEncoding::Nearest(bits),
+            (None, Compress::MeshoptV1) => NormalEncoding::Nearest(NORMAL_BITS_V1),
+            (None, Compress::None | Compress::Quantize | Compress::Meshopt) => NormalEncoding::Rounded,
+        }
+    }
+
     /// Reads a `pipeline.toml`.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
@@ -253,6 +282,11 @@ impl Config {
         }
         if !(self.sun_elevation_deg > 0.0 && self.sun_elevation_deg <= 90.0) {
             return bad("sun_elevation_deg", self.sun_elevation_deg.to_string(), "must be > 0 and <= 90 degrees");
+        }
+        if let Some(b) = self.normal_bits
+            && !(2..=8).contains(&b)
+        {
+            return bad("normal_bits", b.to_string(), "must be within 2..=8 bits");
         }
         Ok(())
     }

@@ -472,6 +472,7 @@ fn build_levels(
             vertex_cache: cfg.triangle_order(),
             quantization: quantization.as_ref(),
             meshopt: cfg.compress.meshopt(),
+            normals: cfg.normal_encoding(),
         },
         texturer: texturer.as_ref(),
         timers: Timers {

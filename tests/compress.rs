@@ -3,17 +3,18 @@
 //! infos an unknown extension brings) and `verify` (which decodes the files
 //! and re-measures δ, borders and morph targets); quantized borders agree
 //! exactly across neighbours; meshopt and meshopt-v1 decode byte for byte
-//! to what quantize writes in the same triangle order, are smaller (under
-//! 10 and 9.25 bytes per surface vertex on St Helens), and are the same at
-//! any thread count; a relief u16 cannot hold at a step small against δ is
-//! refused.
+//! to what quantize writes in the same triangle order (and, for meshopt-v1,
+//! with the same normal encoding), are smaller (under 10 and 9.25 bytes per
+//! surface vertex on St Helens), and are the same at any thread count; the
+//! octahedral normal encodings keep their angle bounds; a relief u16 cannot
+//! hold at a step small against δ is refused.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde_json::Value;
-use terrachunk::config::{Compress, Config, VertexCache};
-use terrachunk::output::compress::decompress;
+use terrachunk::config::{Compress, Config, NORMAL_BITS_V1, VertexCache};
+use terrachunk::output::compress::{NormalEncoding, cosine, decompress, octahedral};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 
@@ -192,16 +193,21 @@ fn meshopt_modes_decode_byte_for_byte_to_quantize_and_pack_under_ten_bytes_per_v
     assert_eq!(Config { compress: Compress::Meshopt, ..Config::default() }.triangle_order(), VertexCache::Strip);
     assert_eq!(Config { compress: Compress::MeshoptV1, ..Config::default() }.triangle_order(), VertexCache::Strip);
     assert_eq!(Config { compress: Compress::Quantize, ..Config::default() }.triangle_order(), VertexCache::Fast);
+    let v1 = Config { compress: Compress::MeshoptV1, ..Config::default() };
+    assert_eq!(v1.normal_encoding(), NormalEncoding::Nearest(NORMAL_BITS_V1));
+    assert_eq!(Config { compress: Compress::Meshopt, ..Config::default() }.normal_encoding(), NormalEncoding::Rounded);
     let mut bytes = BTreeMap::new();
     let mut surface_vertices = 0;
-    // quantize in the meshopt modes' triangle order, so that they hold the same data.
-    for (name, compress, order) in [
-        ("none", Compress::None, None),
-        ("quantize", Compress::Quantize, Some(VertexCache::Strip)),
-        ("meshopt", Compress::Meshopt, None),
-        ("meshopt-v1", Compress::MeshoptV1, None),
+    // quantize in the meshopt modes' triangle order (and, for meshopt-v1, its
+    // normal encoding), so that each pair holds the same data.
+    for (name, compress, order, normal_bits) in [
+        ("none", Compress::None, None, None),
+        ("quantize", Compress::Quantize, Some(VertexCache::Strip), None),
+        ("meshopt", Compress::Meshopt, None, None),
+        ("quantize-nearest", Compress::Quantize, Some(VertexCache::Strip), Some(NORMAL_BITS_V1)),
+        ("meshopt-v1", Compress::MeshoptV1, None, None),
     ] {
-        let config = Config { max_error_m: 1.0, compress, vertex_cache: order, ..Config::default() };
+        let config = Config { max_error_m: 1.0, compress, vertex_cache: order, normal_bits, ..Config::default() };
         let opts = BuildOptions { texture: TextureSource::None, ..with_config(&dem, &tmp.path().join(name), config) };
         let report = build(&opts).unwrap_or_else(|e| panic!("{name}: {e}"));
         surface_vertices = report.levels.iter().map(|l| l.vertices).sum::<usize>();
@@ -217,7 +223,7 @@ fn meshopt_modes_decode_byte_for_byte_to_quantize_and_pack_under_ten_bytes_per_v
         let per_vertex = bytes[name] as f64 / surface_vertices as f64;
         assert!(per_vertex < limit, "{name}: {per_vertex:.2} bytes per surface vertex");
     }
-    for (plain, packed) in [("quantize", "meshopt"), ("quantize", "meshopt-v1")] {
+    for (plain, packed) in [("quantize", "meshopt"), ("quantize-nearest", "meshopt-v1")] {
         let (q, m) = (all_files(&tmp.path().join(plain)), all_files(&tmp.path().join(packed)));
         assert_eq!(q.len(), m.len(), "{plain} and {packed} make the same chunks");
         for ((pq, dq), (pm, dm)) in q.iter().zip(&m) {
@@ -233,6 +239,55 @@ fn meshopt_modes_decode_byte_for_byte_to_quantize_and_pack_under_ten_bytes_per_v
             }
         }
     }
+    // The two normal encodings differ (else this test would not tell them apart).
+    let (q, n) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("quantize-nearest")));
+    assert!(q.iter().zip(&n).any(|((_, a), (_, b))| decoded_views(a)[1] != decoded_views(b)[1]));
+}
+
+#[test]
+fn normal_bits_outside_2_to_8_are_refused() {
+    for (bits, ok) in [(1, false), (2, true), (8, true), (9, false)] {
+        let config = Config { normal_bits: Some(bits), ..Config::default() };
+        assert_eq!(config.validate().is_ok(), ok, "normal_bits = {bits}");
+    }
+}
+
+/// The worst angle, degrees, between unit vectors and what `encoding`
+/// decodes them to.
+fn worst_angle_deg(normals: &[[f32; 3]], encoding: NormalEncoding) -> f64 {
+    let (_, decoded) = octahedral(normals, encoding);
+    normals.iter().zip(&decoded).map(|(n, d)| cosine(n, d).clamp(-1.0, 1.0).acos().to_degrees()).fold(0.0, f64::max)
+}
+
+#[test]
+fn octahedral_normals_keep_their_angle_bounds() {
+    // 200 000 directions spread evenly over the whole sphere (a Fibonacci
+    // lattice), not only the upper half terrain normals lie in.
+    let n = 200_000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let dirs: Vec<[f32; 3]> = (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (f64::from(i) + 0.5) / f64::from(n);
+            let r = (1.0 - y * y).sqrt();
+            let a = golden * f64::from(i);
+            [(r * a.cos()) as f32, y as f32, (r * a.sin()) as f32]
+        })
+        .collect();
+    let rounded = worst_angle_deg(&dirs, NormalEncoding::Rounded);
+    let nearest: Vec<f64> = (6..=8).map(|b| worst_angle_deg(&dirs, NormalEncoding::Nearest(b))).collect();
+    println!("worst angle: rounded 8 bits {rounded:.3}°, nearest 6/7/8 bits {nearest:.3?}°");
+    // meshopt-v1's bound, and the nearest lattice point is never the worse choice.
+    assert!(nearest[2] <= 1.0, "{nearest:?}");
+    assert!(nearest[2] < rounded && nearest[1] < nearest[0], "{rounded} {nearest:?}");
+    let (_, r) = octahedral(&dirs, NormalEncoding::Rounded);
+    let (_, m) = octahedral(&dirs, NormalEncoding::Nearest(8));
+    for ((d, a), b) in dirs.iter().zip(&r).zip(&m) {
+        assert!(cosine(d, b) >= cosine(d, a), "{d:?}: nearest {b:?} is further than rounded {a:?}");
+    }
+    // A tiny exact case: straight up is exact in both, the third component
+    // holds 1.0 in the filter's bits.
+    let (oct, decoded) = octahedral(&[[0.0, 1.0, 0.0]], NormalEncoding::Nearest(6));
+    assert_eq!((oct[0], decoded[0]), ([0, 31, 31, 0], [0, 127, 0, 0]));
 }
 
 /// Surface vertices of a `quantize` chunk in world metres, computed in f64

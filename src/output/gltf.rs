@@ -24,7 +24,7 @@ use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
-use crate::output::compress::{self, Meshopt, Quantization, QuantizeError, Sink};
+use crate::output::compress::{self, Meshopt, NormalEncoding, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
@@ -40,6 +40,8 @@ pub struct GlbContext<'a> {
     /// Compress the quantized streams with meshoptimizer for this extension
     /// (needs `quantization`).
     pub meshopt: Option<Meshopt>,
+    /// How quantized normals are chosen (see [`compress::octahedral`]).
+    pub normals: NormalEncoding,
 }
 
 /// The chunk-local origin: the chunk's west/north corner at its lowest point.
@@ -111,7 +113,7 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     let mut sink = Sink::default();
     let written = match &frame {
         None => prims.iter().map(|p| float_attributes(&mut sink, p, origin)).collect(),
-        Some(f) => compress::write_quantized(&mut sink, f, &prims),
+        Some(f) => compress::write_quantized(&mut sink, f, &prims, ctx.normals),
     };
     let prims: Vec<Value> = parts
         .iter()
