@@ -16,6 +16,7 @@ use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::Heightfield;
 use terrachunk::mesh::ChunkMesh;
 use terrachunk::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
+use terrachunk::output::compress::NormalEncoding;
 use terrachunk::output::gltf::{GlbContext, encode_glb};
 use terrachunk::pipeline::assemble;
 use terrachunk::quadtree::ChunkKey;
@@ -91,7 +92,8 @@ fn stages(c: &mut Criterion) {
         generator: "bench",
         vertex_cache: VertexCache::Fast,
         quantization: None,
-        meshopt: false,
+        meshopt: None,
+        normals: NormalEncoding::Rounded,
     };
     for n in SIZES {
         let part = assemble(&grid(&hf), hf.spacing_m, &chunk(&hf, n), 4.0 * DELTA_M);

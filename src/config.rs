@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::output::compress::{Meshopt, NormalEncoding};
+
 /// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -64,10 +66,27 @@ pub struct Config {
     /// How vertex data is stored in the .glb (see `output::compress`):
     /// `none` (f32, opens everywhere), `quantize` (KHR_mesh_quantization:
     /// integer positions on a world-aligned grid whose rounding is taken out
-    /// of every level's δ) or `meshopt` (quantize, then
-    /// EXT_meshopt_compression). Default `none`.
+    /// of every level's δ), `meshopt` (quantize, then
+    /// EXT_meshopt_compression) or `meshopt-v1` (quantize, then
+    /// KHR_meshopt_compression with the version 1 vertex codec). Default
+    /// `none`.
     pub compress: Compress,
+    /// Bits per octahedral coordinate of quantized normals (meshoptimizer's
+    /// OCTAHEDRAL filter in i8 components), each normal stored as the
+    /// lattice point whose decoded normal is nearest it: fewer bits pack
+    /// tighter and shade coarser (worst 0.71° at 8 bits, 1.45° at 7, 2.58° at
+    /// 6 on Fuji). Range: 2..=8. Default: unset, which means
+    /// [`NORMAL_BITS_V1`] with `compress = "meshopt-v1"` and, for `quantize`
+    /// and `meshopt`, 8 bits rounded as meshoptimizer's encoder rounds them,
+    /// as earlier versions wrote them (worst 1.14°)
+    /// ([`Config::normal_encoding`]). Unused with `compress = "none"`.
+    pub normal_bits: Option<u32>,
 }
+
+/// The octahedral bits of `meshopt-v1` normals: the fewest whose decoded
+/// normals stay within 1° of the exact ones (0.71° worst on Fuji, 1.45° at
+/// 7 bits; README, "Compression").
+pub const NORMAL_BITS_V1: u32 = 8;
 
 /// How a chunk's vertex data is stored. Measured figures are in README,
 /// "Compression".
@@ -83,14 +102,31 @@ pub enum Compress {
     /// morph deltas; u16 normalized texture coordinates.
     Quantize,
     /// `Quantize`, then every vertex and index stream through
-    /// meshoptimizer's codecs (EXT_meshopt_compression, required).
+    /// meshoptimizer's codecs (EXT_meshopt_compression, required; vertex
+    /// codec version 0), for every meshopt reader.
     Meshopt,
+    /// `Quantize`, then every vertex and index stream through
+    /// meshoptimizer's codecs (KHR_meshopt_compression, required; vertex
+    /// codec version 1), normals the nearest [`NORMAL_BITS_V1`]-bit
+    /// octahedral lattice points, and a leaner JSON: the smallest output,
+    /// for readers that know KHR_meshopt_compression (CesiumJS from 1.143).
+    #[serde(rename = "meshopt-v1")]
+    MeshoptV1,
 }
 
 impl Compress {
-    /// Whether vertex data is quantized (`quantize` and `meshopt`).
+    /// Whether vertex data is quantized (every mode but `none`).
     pub fn quantizes(self) -> bool {
         self != Compress::None
+    }
+
+    /// The meshoptimizer extension the quantized streams are packed for.
+    pub fn meshopt(self) -> Option<Meshopt> {
+        match self {
+            Compress::None | Compress::Quantize => None,
+            Compress::Meshopt => Some(Meshopt::Ext),
+            Compress::MeshoptV1 => Some(Meshopt::Khr),
+        }
     }
 }
 
@@ -144,6 +180,7 @@ impl Default for Config {
             sun_elevation_deg: 45.0,
             normal_map: false,
             compress: Compress::None,
+            normal_bits: None,
         }
     }
 }
@@ -181,14 +218,26 @@ pub enum ConfigError {
 
 impl Config {
     /// The triangle order in effect: `vertex_cache`, or when it is unset
-    /// `Strip` for `meshopt` output (1.2 bytes per surface vertex smaller
-    /// than `Fast` on Fuji, 1.9 on California at 1 m, where the build takes
-    /// a quarter longer) and `Fast` otherwise.
+    /// `Strip` for `meshopt` and `meshopt-v1` output (1.2 bytes per surface
+    /// vertex smaller than `Fast` on Fuji, 1.9 on California at 1 m, where
+    /// the build takes a quarter longer) and `Fast` otherwise.
     pub fn triangle_order(&self) -> VertexCache {
         self.vertex_cache.unwrap_or(match self.compress {
-            Compress::Meshopt => VertexCache::Strip,
+            Compress::Meshopt | Compress::MeshoptV1 => VertexCache::Strip,
             Compress::None | Compress::Quantize => VertexCache::Fast,
         })
+    }
+
+    /// How quantized normals are chosen: the nearest of `normal_bits`, or
+    /// when it is unset of [`NORMAL_BITS_V1`] for `meshopt-v1`, and
+    /// meshoptimizer's own 8-bit rounding for `quantize` and `meshopt`
+    /// (whose files stay as earlier versions wrote them).
+    pub fn normal_encoding(&self) -> NormalEncoding {
+        match (self.normal_bits, self.compress) {
+            (Some(bits), _) => NormalEncoding::Nearest(bits),
+            (None, Compress::MeshoptV1) => NormalEncoding::Nearest(NORMAL_BITS_V1),
+            (None, Compress::None | Compress::Quantize | Compress::Meshopt) => NormalEncoding::Rounded,
+        }
     }
 
     /// Reads a `pipeline.toml`.
@@ -233,6 +282,11 @@ impl Config {
         }
         if !(self.sun_elevation_deg > 0.0 && self.sun_elevation_deg <= 90.0) {
             return bad("sun_elevation_deg", self.sun_elevation_deg.to_string(), "must be > 0 and <= 90 degrees");
+        }
+        if let Some(b) = self.normal_bits
+            && !(2..=8).contains(&b)
+        {
+            return bad("normal_bits", b.to_string(), "must be within 2..=8 bits");
         }
         Ok(())
     }

@@ -69,8 +69,10 @@ enum Command {
         #[arg(long)]
         complete_tree: bool,
         /// How vertex data is stored: f32 (`none`, opens everywhere),
-        /// KHR_mesh_quantization (`quantize`) or that plus
-        /// EXT_meshopt_compression (`meshopt`) [default: none].
+        /// KHR_mesh_quantization (`quantize`), that plus
+        /// EXT_meshopt_compression (`meshopt`, for every meshopt reader) or
+        /// plus KHR_meshopt_compression with meshoptimizer's v1 vertex codec
+        /// (`meshopt-v1`, the smallest; CesiumJS ≥ 1.143) [default: none].
         #[arg(long, value_enum)]
         compress: Option<CompressArg>,
         /// Replace an existing output directory.
@@ -170,6 +172,8 @@ enum CompressArg {
     None,
     Quantize,
     Meshopt,
+    #[value(name = "meshopt-v1")]
+    MeshoptV1,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -264,6 +268,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     CompressArg::None => Compress::None,
                     CompressArg::Quantize => Compress::Quantize,
                     CompressArg::Meshopt => Compress::Meshopt,
+                    CompressArg::MeshoptV1 => Compress::MeshoptV1,
                 };
             }
             let opts = BuildOptions {

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::chunk::{Chunk, Part};
-use crate::config::{Compress, Config, ConfigError};
+use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
@@ -471,7 +471,8 @@ fn build_levels(
             generator: &generator,
             vertex_cache: cfg.triangle_order(),
             quantization: quantization.as_ref(),
-            meshopt: cfg.compress == Compress::Meshopt,
+            meshopt: cfg.compress.meshopt(),
+            normals: cfg.normal_encoding(),
         },
         texturer: texturer.as_ref(),
         timers: Timers {

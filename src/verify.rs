@@ -17,10 +17,10 @@
 //!   not morph;
 //! - structure: 3D Tiles 1.1 fields, REPLACE, geometricError = δ(L) halving
 //!   with each level, boxes that contain their content, extras that match;
-//! - compressed chunks (`compress = "quantize" | "meshopt"`) are decoded
-//!   first (`output::compress::decompress`, meshoptimizer's decoders) and
-//!   checked alike: the error against δ(L) with no allowance for the
-//!   quantization, the borders as
+//! - compressed chunks (`compress = "quantize" | "meshopt" |
+//!   "meshopt-v1"`) are decoded first (`output::compress::decompress`,
+//!   meshoptimizer's decoders) and checked alike: the error against δ(L)
+//!   with no allowance for the quantization, the borders as
 //!   exactly, and the morph targets with the quantization step in place of
 //!   the f32 rounding;
 //! - texture (when the tileset says its chunks are textured): every tile's

@@ -1,17 +1,20 @@
-//! `compress = "quantize" | "meshopt"`: each mode builds, passes the Khronos
-//! validator and `verify` (which decodes the files and re-measures δ, borders
-//! and morph targets); quantized borders agree exactly across neighbours;
-//! meshopt decodes byte for byte to what quantize writes in the same
-//! triangle order, is smaller (under 10 bytes per surface vertex on St
-//! Helens), and is the same at any thread count; a relief u16 cannot hold at
-//! a step small against δ is refused.
+//! `compress = "quantize" | "meshopt" | "meshopt-v1"`: each mode builds,
+//! passes the Khronos validator (the meshopt modes with no more than the
+//! infos an unknown extension brings) and `verify` (which decodes the files
+//! and re-measures δ, borders and morph targets); quantized borders agree
+//! exactly across neighbours; meshopt and meshopt-v1 decode byte for byte
+//! to what quantize writes in the same triangle order (and, for meshopt-v1,
+//! with the same normal encoding), are smaller (under 10 and 9.25 bytes per
+//! surface vertex on St Helens), and are the same at any thread count; the
+//! octahedral normal encodings keep their angle bounds; a relief u16 cannot
+//! hold at a step small against δ is refused.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde_json::Value;
-use terrachunk::config::{Compress, Config, VertexCache};
-use terrachunk::output::compress::decompress;
+use terrachunk::config::{Compress, Config, NORMAL_BITS_V1, VertexCache};
+use terrachunk::output::compress::{NormalEncoding, cosine, decompress, octahedral};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 
@@ -31,6 +34,25 @@ fn glb_json(bytes: &[u8]) -> Value {
     serde_json::from_slice(&gltf::Glb::from_slice(bytes).unwrap().json).unwrap()
 }
 
+/// The validator's infos, each allowed: the images' non-power-of-two sizes
+/// in any mode, and in a meshopt mode that it cannot check the extension
+/// (once per file, by name) and so sees nothing use the binary chunk.
+#[track_caller]
+fn assert_validator_infos(report: &Value, compress: Compress) {
+    assert_eq!(report["warnings"], 0, "{report}");
+    let files = report["files"].as_u64().unwrap();
+    let unknown = compress.meshopt().map(|m| format!("UNSUPPORTED_EXTENSION {}", m.extension()));
+    for (info, n) in report["infos"].as_object().unwrap() {
+        let allowed = info.starts_with("IMAGE_NPOT_DIMENSIONS /images/")
+            || (unknown.is_some() && info == "UNUSED_OBJECT /buffers/0")
+            || Some(info) == unknown.as_ref();
+        assert!(allowed, "{compress:?}: validator info {info} ({n} files)");
+    }
+    if let Some(u) = unknown {
+        assert_eq!(report["infos"][&u], files, "{compress:?}: {report}");
+    }
+}
+
 #[test]
 fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
     let tmp = tempfile::tempdir().unwrap();
@@ -40,6 +62,8 @@ fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
         ("quantize", Compress::Quantize, false),
         ("meshopt", Compress::Meshopt, false),
         ("meshopt-normal-map", Compress::Meshopt, true),
+        ("meshopt-v1", Compress::MeshoptV1, false),
+        ("meshopt-v1-normal-map", Compress::MeshoptV1, true),
     ] {
         let out = tmp.path().join(name);
         let config = Config { max_error_m: 1.0, compress, normal_map, ..Config::default() };
@@ -51,6 +75,7 @@ fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
         assert!(v.borders_checked > 0, "{name}: no borders compared");
         let report = khronos_validate(&out);
         assert!(report["files"].as_u64().unwrap() > 10, "{name}: {report}");
+        assert_validator_infos(&report, compress);
         let (_, first) = all_files(&out).into_iter().find(|(p, _)| p.ends_with("tiles/0/0/0.glb")).unwrap();
         let j = glb_json(&first);
         let required = j["extensionsRequired"].clone();
@@ -60,6 +85,16 @@ fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
             Compress::Meshopt => {
                 assert_eq!(required, serde_json::json!(["KHR_mesh_quantization", "EXT_meshopt_compression"]));
                 assert_eq!(j["buffers"][1]["extensions"]["EXT_meshopt_compression"]["fallback"], true);
+                assert!(j["nodes"][0]["name"].is_string(), "{name}: meshopt files stay as they were");
+            }
+            Compress::MeshoptV1 => {
+                assert_eq!(required, serde_json::json!(["KHR_mesh_quantization", "KHR_meshopt_compression"]));
+                assert_eq!(j["buffers"][1]["extensions"]["KHR_meshopt_compression"]["fallback"], true);
+                // The lean JSON: no names, no default roughness.
+                for object in ["nodes", "meshes", "materials"] {
+                    assert!(j[object][0]["name"].is_null(), "{name}: {j}");
+                }
+                assert!(j["materials"][0]["pbrMetallicRoughness"]["roughnessFactor"].is_null(), "{name}: {j}");
             }
         }
     }
@@ -68,12 +103,17 @@ fn every_compress_mode_verifies_and_passes_the_khronos_validator() {
 #[test]
 fn meshopt_over_nodata_and_below_sea_level_verifies_and_validates() {
     let tmp = tempfile::tempdir().unwrap();
-    for (name, max_error_m) in [("west_bijou_gully_3m.asc", 0.25), ("salish_sea_topobathy_f32.tif", 5.0)] {
-        let out = tmp.path().join(name);
-        let config = Config { max_error_m, compress: Compress::Meshopt, ..Config::default() };
+    for (name, max_error_m, compress) in [
+        ("west_bijou_gully_3m.asc", 0.25, Compress::Meshopt),
+        ("salish_sea_topobathy_f32.tif", 5.0, Compress::Meshopt),
+        ("west_bijou_gully_3m.asc", 0.25, Compress::MeshoptV1),
+        ("salish_sea_topobathy_f32.tif", 5.0, Compress::MeshoptV1),
+    ] {
+        let out = tmp.path().join(format!("{name}-{compress:?}"));
+        let config = Config { max_error_m, compress, ..Config::default() };
         build(&with_config(&fixture(name), &out, config)).unwrap_or_else(|e| panic!("{name}: {e}"));
         verified(&out);
-        khronos_validate(&out);
+        assert_validator_infos(&khronos_validate(&out), compress);
     }
 }
 
@@ -82,9 +122,9 @@ fn attribute_bytes<T: Clone + Default + AsRef<[u8]>>(data: &[u8], count: usize) 
     meshopt::decode_vertex_buffer::<T>(data, count).unwrap().iter().flat_map(|e| e.as_ref().to_vec()).collect()
 }
 
-/// Every bufferView of a .glb as a reader gets it: EXT_meshopt_compression
-/// views decoded by meshoptimizer itself (the OCTAHEDRAL filter undone),
-/// the others as stored.
+/// Every bufferView of a .glb as a reader gets it: EXT_ and
+/// KHR_meshopt_compression views decoded by meshoptimizer itself (the
+/// OCTAHEDRAL filter undone), the others as stored.
 fn decoded_views(bytes: &[u8]) -> Vec<Vec<u8>> {
     let glb = gltf::Glb::from_slice(bytes).unwrap();
     let j: Value = serde_json::from_slice(&glb.json).unwrap();
@@ -92,7 +132,8 @@ fn decoded_views(bytes: &[u8]) -> Vec<Vec<u8>> {
     let num = |x: &Value| x.as_u64().unwrap_or(0) as usize;
     let mut out = Vec::new();
     for v in j["bufferViews"].as_array().unwrap() {
-        let Some(m) = v["extensions"].get("EXT_meshopt_compression") else {
+        let ext = ["EXT_meshopt_compression", "KHR_meshopt_compression"].iter().find_map(|e| v["extensions"].get(e));
+        let Some(m) = ext else {
             out.push(bin[num(&v["byteOffset"])..][..num(&v["byteLength"])].to_vec());
             continue;
         };
@@ -119,6 +160,8 @@ fn decoded_views(bytes: &[u8]) -> Vec<Vec<u8>> {
 }
 
 /// The document without what compression changes: where the bytes are.
+/// meshopt-v1's lean JSON also drops the names and the default roughness,
+/// so those are left out of the comparison too.
 fn layout(bytes: &[u8]) -> Value {
     let mut j = glb_json(bytes);
     for key in ["buffers", "extensionsUsed", "extensionsRequired"] {
@@ -128,24 +171,43 @@ fn layout(bytes: &[u8]) -> Value {
         v.as_object_mut().unwrap().remove("buffer");
         v.as_object_mut().unwrap().remove("extensions");
     }
+    for object in ["nodes", "meshes", "materials"] {
+        j[object][0].as_object_mut().unwrap().remove("name");
+    }
+    j["materials"][0]["pbrMetallicRoughness"].as_object_mut().unwrap().remove("roughnessFactor");
     j
 }
 
+/// A decoded (plain f32) chunk's accessors, views and binary chunk: its
+/// geometry, whatever the names around it.
+fn geometry(glb: &[u8]) -> (Value, Value, Vec<u8>) {
+    let g = gltf::Glb::from_slice(glb).unwrap();
+    let j: Value = serde_json::from_slice(&g.json).unwrap();
+    (j["accessors"].clone(), j["bufferViews"].clone(), g.bin.unwrap().into_owned())
+}
+
 #[test]
-fn meshopt_decodes_byte_for_byte_to_quantize_and_packs_under_ten_bytes_per_vertex() {
+fn meshopt_modes_decode_byte_for_byte_to_quantize_and_pack_under_ten_bytes_per_vertex() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = fixture("mount_st_helens_30m.tif");
     assert_eq!(Config { compress: Compress::Meshopt, ..Config::default() }.triangle_order(), VertexCache::Strip);
+    assert_eq!(Config { compress: Compress::MeshoptV1, ..Config::default() }.triangle_order(), VertexCache::Strip);
     assert_eq!(Config { compress: Compress::Quantize, ..Config::default() }.triangle_order(), VertexCache::Fast);
+    let v1 = Config { compress: Compress::MeshoptV1, ..Config::default() };
+    assert_eq!(v1.normal_encoding(), NormalEncoding::Nearest(NORMAL_BITS_V1));
+    assert_eq!(Config { compress: Compress::Meshopt, ..Config::default() }.normal_encoding(), NormalEncoding::Rounded);
     let mut bytes = BTreeMap::new();
     let mut surface_vertices = 0;
-    // quantize in meshopt's triangle order, so that the two hold the same data.
-    for (name, compress, order) in [
-        ("none", Compress::None, None),
-        ("quantize", Compress::Quantize, Some(VertexCache::Strip)),
-        ("meshopt", Compress::Meshopt, None),
+    // quantize in the meshopt modes' triangle order (and, for meshopt-v1, its
+    // normal encoding), so that each pair holds the same data.
+    for (name, compress, order, normal_bits) in [
+        ("none", Compress::None, None, None),
+        ("quantize", Compress::Quantize, Some(VertexCache::Strip), None),
+        ("meshopt", Compress::Meshopt, None, None),
+        ("quantize-nearest", Compress::Quantize, Some(VertexCache::Strip), Some(NORMAL_BITS_V1)),
+        ("meshopt-v1", Compress::MeshoptV1, None, None),
     ] {
-        let config = Config { max_error_m: 1.0, compress, vertex_cache: order, ..Config::default() };
+        let config = Config { max_error_m: 1.0, compress, vertex_cache: order, normal_bits, ..Config::default() };
         let opts = BuildOptions { texture: TextureSource::None, ..with_config(&dem, &tmp.path().join(name), config) };
         let report = build(&opts).unwrap_or_else(|e| panic!("{name}: {e}"));
         surface_vertices = report.levels.iter().map(|l| l.vertices).sum::<usize>();
@@ -153,24 +215,79 @@ fn meshopt_decodes_byte_for_byte_to_quantize_and_packs_under_ten_bytes_per_verte
     }
     assert!(bytes["quantize"] < bytes["none"], "{bytes:?}");
     assert!(bytes["meshopt"] < bytes["quantize"], "{bytes:?}");
-    // Every .glb byte (no images here) per surface vertex: 11.6 before the
-    // strip order, the three shared views and i8 morph deltas.
-    let per_vertex = bytes["meshopt"] as f64 / surface_vertices as f64;
-    assert!(per_vertex < 10.0, "meshopt: {per_vertex:.2} bytes per surface vertex");
-    let (q, m) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("meshopt")));
-    assert_eq!(q.len(), m.len(), "quantize and meshopt make the same chunks");
-    for ((pq, dq), (pm, dm)) in q.iter().zip(&m) {
-        assert_eq!(pq, pm);
-        if pq.extension().is_some_and(|e| e == "glb") {
-            let (views, decoded) = (decoded_views(dq), decoded_views(dm));
-            assert_eq!(views.len(), 3, "{}: vertices, normals, triangles", pq.display());
-            assert!(views == decoded, "{}: meshopt decodes to other bytes than quantize writes", pq.display());
-            assert_eq!(layout(dq), layout(dm), "{}", pq.display());
-            let (a, b) = (decompress(dq).unwrap().unwrap(), decompress(dm).unwrap().unwrap());
-            assert!(a.glb == b.glb, "{}: meshopt decodes to other geometry than quantize", pq.display());
-            assert_eq!(a.step_m, b.step_m);
+    assert!(bytes["meshopt-v1"] < bytes["meshopt"], "{bytes:?}");
+    // Every .glb byte (no images here) per surface vertex: meshopt gave
+    // 11.6 before the strip order, the three shared views and i8 morph
+    // deltas, and gives 9.59 now; meshopt-v1 9.01.
+    for (name, limit) in [("meshopt", 10.0), ("meshopt-v1", 9.25)] {
+        let per_vertex = bytes[name] as f64 / surface_vertices as f64;
+        assert!(per_vertex < limit, "{name}: {per_vertex:.2} bytes per surface vertex");
+    }
+    for (plain, packed) in [("quantize", "meshopt"), ("quantize-nearest", "meshopt-v1")] {
+        let (q, m) = (all_files(&tmp.path().join(plain)), all_files(&tmp.path().join(packed)));
+        assert_eq!(q.len(), m.len(), "{plain} and {packed} make the same chunks");
+        for ((pq, dq), (pm, dm)) in q.iter().zip(&m) {
+            assert_eq!(pq, pm);
+            if pq.extension().is_some_and(|e| e == "glb") {
+                let (views, decoded) = (decoded_views(dq), decoded_views(dm));
+                assert_eq!(views.len(), 3, "{}: vertices, normals, triangles", pq.display());
+                assert!(views == decoded, "{}: {packed} decodes to other bytes than {plain} writes", pq.display());
+                assert_eq!(layout(dq), layout(dm), "{}", pq.display());
+                let (a, b) = (decompress(dq).unwrap().unwrap(), decompress(dm).unwrap().unwrap());
+                assert!(geometry(&a.glb) == geometry(&b.glb), "{}: {packed} decodes to other geometry", pq.display());
+                assert_eq!(a.step_m, b.step_m);
+            }
         }
     }
+    // The two normal encodings differ (else this test would not tell them apart).
+    let (q, n) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("quantize-nearest")));
+    assert!(q.iter().zip(&n).any(|((_, a), (_, b))| decoded_views(a)[1] != decoded_views(b)[1]));
+}
+
+#[test]
+fn normal_bits_outside_2_to_8_are_refused() {
+    for (bits, ok) in [(1, false), (2, true), (8, true), (9, false)] {
+        let config = Config { normal_bits: Some(bits), ..Config::default() };
+        assert_eq!(config.validate().is_ok(), ok, "normal_bits = {bits}");
+    }
+}
+
+/// The worst angle, degrees, between unit vectors and what `encoding`
+/// decodes them to.
+fn worst_angle_deg(normals: &[[f32; 3]], encoding: NormalEncoding) -> f64 {
+    let (_, decoded) = octahedral(normals, encoding);
+    normals.iter().zip(&decoded).map(|(n, d)| cosine(n, d).clamp(-1.0, 1.0).acos().to_degrees()).fold(0.0, f64::max)
+}
+
+#[test]
+fn octahedral_normals_keep_their_angle_bounds() {
+    // 200 000 directions spread evenly over the whole sphere (a Fibonacci
+    // lattice), not only the upper half terrain normals lie in.
+    let n = 200_000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let dirs: Vec<[f32; 3]> = (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (f64::from(i) + 0.5) / f64::from(n);
+            let r = (1.0 - y * y).sqrt();
+            let a = golden * f64::from(i);
+            [(r * a.cos()) as f32, y as f32, (r * a.sin()) as f32]
+        })
+        .collect();
+    let rounded = worst_angle_deg(&dirs, NormalEncoding::Rounded);
+    let nearest: Vec<f64> = (6..=8).map(|b| worst_angle_deg(&dirs, NormalEncoding::Nearest(b))).collect();
+    println!("worst angle: rounded 8 bits {rounded:.3}°, nearest 6/7/8 bits {nearest:.3?}°");
+    // meshopt-v1's bound, and the nearest lattice point is never the worse choice.
+    assert!(nearest[2] <= 1.0, "{nearest:?}");
+    assert!(nearest[2] < rounded && nearest[1] < nearest[0], "{rounded} {nearest:?}");
+    let (_, r) = octahedral(&dirs, NormalEncoding::Rounded);
+    let (_, m) = octahedral(&dirs, NormalEncoding::Nearest(8));
+    for ((d, a), b) in dirs.iter().zip(&r).zip(&m) {
+        assert!(cosine(d, b) >= cosine(d, a), "{d:?}: nearest {b:?} is further than rounded {a:?}");
+    }
+    // A tiny exact case: straight up is exact in both, the third component
+    // holds 1.0 in the filter's bits.
+    let (oct, decoded) = octahedral(&[[0.0, 1.0, 0.0]], NormalEncoding::Nearest(6));
+    assert_eq!((oct[0], decoded[0]), ([0, 31, 31, 0], [0, 127, 0, 0]));
 }
 
 /// Surface vertices of a `quantize` chunk in world metres, computed in f64
@@ -253,18 +370,21 @@ fn border_vertices_agree_across_neighbours_after_quantisation() {
 fn meshopt_output_is_byte_identical_twice_and_with_one_and_two_threads() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = fixture("jacksboro_fault_u16.png");
-    let runs = [("a", 1), ("b", 2), ("c", 2)];
-    for (name, threads) in runs {
-        build_mode(&dem, &tmp.path().join(name), Compress::Meshopt, TextureSource::Generated, threads);
-    }
-    let a = all_files(&tmp.path().join("a"));
-    assert!(a.len() > 10);
-    for (name, _) in &runs[1..] {
-        let b = all_files(&tmp.path().join(name));
-        assert_eq!(a.len(), b.len());
-        for ((pa, da), (pb, db)) in a.iter().zip(&b) {
-            assert_eq!(pa, pb);
-            assert!(da == db, "{} differs between runs", pa.display());
+    for compress in [Compress::Meshopt, Compress::MeshoptV1] {
+        let runs = [("a", 1), ("b", 2), ("c", 2)];
+        let dir = |name: &str| tmp.path().join(format!("{compress:?}-{name}"));
+        for (name, threads) in runs {
+            build_mode(&dem, &dir(name), compress, TextureSource::Generated, threads);
+        }
+        let a = all_files(&dir("a"));
+        assert!(a.len() > 10);
+        for (name, _) in &runs[1..] {
+            let b = all_files(&dir(name));
+            assert_eq!(a.len(), b.len());
+            for ((pa, da), (pb, db)) in a.iter().zip(&b) {
+                assert_eq!(pa, pb);
+                assert!(da == db, "{compress:?}: {} differs between runs", pa.display());
+            }
         }
     }
 }
@@ -272,26 +392,28 @@ fn meshopt_output_is_byte_identical_twice_and_with_one_and_two_threads() {
 #[test]
 fn inspect_reads_meshopt_chunks_and_the_flag_reaches_the_build() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("m");
     let dem = fixture("dfw_texas_srtm3.tif");
-    let o = cli(&[
-        "build",
-        dem.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--compress",
-        "meshopt",
-        "--texture",
-        "none",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let glb = out.join("tiles/0/0/0.glb");
-    assert!(glb_json(&std::fs::read(&glb).unwrap())["extensionsUsed"].to_string().contains("EXT_meshopt_compression"));
-    let o = cli(&["inspect", glb.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success() && text.contains("surface") && text.contains("vertices"), "{text}");
-    let o = cli(&["verify", out.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+    for (mode, extension) in [("meshopt", "EXT_meshopt_compression"), ("meshopt-v1", "KHR_meshopt_compression")] {
+        let out = tmp.path().join(mode);
+        let o = cli(&[
+            "build",
+            dem.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--compress",
+            mode,
+            "--texture",
+            "none",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let glb = out.join("tiles/0/0/0.glb");
+        assert!(glb_json(&std::fs::read(&glb).unwrap())["extensionsUsed"].to_string().contains(extension), "{mode}");
+        let o = cli(&["inspect", glb.to_str().unwrap()]);
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success() && text.contains("surface") && text.contains("vertices"), "{mode}: {text}");
+        let o = cli(&["verify", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{mode}: {}", String::from_utf8_lossy(&o.stdout));
+    }
 }
 
 #[test]

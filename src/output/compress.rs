@@ -1,8 +1,9 @@
-//! Compressed vertex data (`compress = "quantize" | "meshopt"`): integer
-//! positions, normals, morph deltas and texture coordinates by
-//! KHR_mesh_quantization, then optionally meshoptimizer's vertex and index
-//! codecs by EXT_meshopt_compression; and the reader that turns such a file
-//! back into the plain f32 glTF that `verify` and `inspect` read.
+//! Compressed vertex data (`compress = "quantize" | "meshopt" |
+//! "meshopt-v1"`): integer positions, normals, morph deltas and texture
+//! coordinates by KHR_mesh_quantization, then optionally meshoptimizer's
+//! vertex and index codecs by EXT_meshopt_compression or
+//! KHR_meshopt_compression; and the reader that turns such a file back into
+//! the plain f32 glTF that `verify` and `inspect` read.
 //!
 //! **The grid.** Positions are u16 on a grid that is the same for every
 //! chunk of a level and aligned to the world, so that two chunks round a
@@ -30,15 +31,17 @@
 //! ([`Quantization::mesh_delta`]) and the written, dequantized chunk is
 //! still within δ(L) of every sample. Cut points also move sideways by up to
 //! half a horizontal step (1/512 of a cell in a 250-cell chunk); the
-//! mesher's own margin (it meshes to 0.98·δ) is what covers that, and
+//! mesher's own margin next to them (a triangle with a cut-point corner is
+//! meshed to 0.98·δ, [`crate::mesh::decimate::Targets`]) covers that, and
 //! `verify` re-measures the dequantized files against δ with no allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
 //! the vertex's rounded height, in whole steps (scaled by the node like
 //! POSITION): i8 where every delta of the chunk fits, which is every leaf
 //! and most levels, else i16, or f32 holding the same whole numbers where a
-//! delta exceeds 32 767 steps. Normals are i8 normalized (octahedral-rounded, see below),
-//! texture coordinates u16 normalized, the normal map's tangent i8 normalized.
+//! delta exceeds 32 767 steps. Normals are i8 normalized (as the OCTAHEDRAL
+//! filter decodes them, see below), texture coordinates u16 normalized, the
+//! normal map's tangent i8 normalized.
 //!
 //! **Layout.** A chunk's vertex data lies in three bufferViews, each holding
 //! the surface then the skirt ([`write_quantized`]): the vertex attributes
@@ -55,7 +58,35 @@
 //! is *required* and the fallback buffer holds no data (`fallback: true`):
 //! the point of the mode is size, and an uncompressed fallback would make the
 //! file larger than `quantize`; a reader without the decoder should use
-//! `quantize` or `none` output.
+//! `quantize` or `none` output. Its files stay byte for byte what they were
+//! before `meshopt-v1` existed, for cesium-native and other readers that
+//! know only the EXT extension.
+//!
+//! **meshopt-v1** is `meshopt` for readers that know KHR_meshopt_compression
+//! (its Khronos successor; CesiumJS from 1.143), and differs in three ways:
+//! - the vertex streams go through meshoptimizer's vertex codec version 1
+//!   (which the KHR extension allows and EXT does not) at level 3, its
+//!   tightest (0.05–0.07 bytes per vertex below level 2; the encoder's
+//!   extra second or two on California is inside the write stage's
+//!   run-to-run spread); the index stream through the same triangle codec;
+//! - normals keep 8 octahedral bits but each is the lattice point whose
+//!   *decoded* normal is nearest the exact one ([`NormalEncoding::Nearest`])
+//!   instead of meshoptimizer's per-coordinate rounding: worst angle 0.71°
+//!   instead of 1.14° on Fuji (0.73° against 1.21° over the whole sphere)
+//!   for 0.003 bytes per vertex. 8 bits are the fewest that stay within 1°:
+//!   measured on Fuji at 1 m (501 869 normals; worst angle, then bytes per
+//!   surface vertex of the normal stream and of all geometry,
+//!   `examples/geometry_bytes.rs`), 8 bits 0.71°, 1.75, 8.28; 7 bits
+//!   1.45°, 1.59, 8.11; 6 bits 2.58°, 1.32, 7.83 (rounded instead: 1.14°,
+//!   2.15°, 3.79°). `normal_bits` trades that shading for size in any mode;
+//! - the JSON leaves out what only labels or restates a default: the node,
+//!   mesh and material names (the chunk record has the key) and the
+//!   material's roughness 1 (see [`meshopt_pack`] for a cut that was tried
+//!   and dropped).
+//!
+//! Its normals differ from `quantize`'s, so it decodes byte for byte to
+//! what `quantize` writes with `normal_bits = 8` (and the `strip` order),
+//! the same nearest-point normals: that pair is what the tests compare.
 
 use serde_json::{Value, json};
 
@@ -222,6 +253,130 @@ impl Frame {
 }
 
 // ------------------------------------------------------------------ writing
+
+/// The meshoptimizer extension the quantized streams are compressed for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Meshopt {
+    /// EXT_meshopt_compression (`compress = "meshopt"`): vertex codec
+    /// version 0, the only one it allows.
+    Ext,
+    /// KHR_meshopt_compression (`compress = "meshopt-v1"`): vertex codec
+    /// version 1.
+    Khr,
+}
+
+/// The extensions [`decompress`] reads compressed bufferViews of.
+const MESHOPT_EXTENSIONS: [&str; 2] = ["EXT_meshopt_compression", "KHR_meshopt_compression"];
+
+impl Meshopt {
+    /// The extension's name, as `extensionsUsed` and the bufferViews spell it.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Meshopt::Ext => MESHOPT_EXTENSIONS[0],
+            Meshopt::Khr => MESHOPT_EXTENSIONS[1],
+        }
+    }
+
+    /// meshoptimizer's vertex codec version.
+    fn vertex_version(self) -> i32 {
+        match self {
+            Meshopt::Ext => 0,
+            Meshopt::Khr => 1,
+        }
+    }
+
+    /// meshoptimizer's vertex encoder level (0..=3). Version 0 is written at
+    /// level 2 as it always was; version 1 at 3, its tightest: 0.047 bytes
+    /// per surface vertex below level 2 on California at 1 m, for 1.5
+    /// thread-seconds more encoding (6.6 against 5.1; version 0 takes 3.0)
+    /// in a write stage of about 66 (README, "Compression").
+    fn vertex_level(self) -> i32 {
+        match self {
+            Meshopt::Ext => 2,
+            Meshopt::Khr => 3,
+        }
+    }
+}
+
+/// How quantized normals are chosen for meshoptimizer's OCTAHEDRAL filter,
+/// which stores two octahedral coordinates of `bits` bits in i8 components
+/// and decodes them to an i8 normalized unit vector. Worst angles measured
+/// on Fuji at 1 m (501 869 surface and skirt normals, README):
+///
+/// | bits | `Rounded` | `Nearest` |
+/// |---|---|---|
+/// | 8 | 1.14° | 0.71° |
+/// | 7 | 2.15° | 1.45° |
+/// | 6 | 3.79° | 2.58° |
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormalEncoding {
+    /// 8 bits, each coordinate rounded as meshoptimizer's encoder rounds it:
+    /// what `quantize` and `meshopt` have always written.
+    Rounded,
+    /// `bits` bits (2..=8), each normal the one of the four lattice points
+    /// around its octahedral coordinates whose *decoded* normal is nearest
+    /// it: rounding each coordinate on its own is not the nearest point on
+    /// the sphere, and the decoder's own rounding to i8 adds to it.
+    Nearest(u32),
+}
+
+/// Unit normals through meshoptimizer's OCTAHEDRAL filter as `encoding`
+/// says: what the filter's input holds (the two coordinates and the third
+/// component holding 1.0 in that many bits; the fourth is 0) and what the
+/// decoder makes of it, the i8 normalized normal a reader gets.
+pub fn octahedral(normals: &[[f32; 3]], encoding: NormalEncoding) -> (Vec<[i8; 4]>, Vec<[i8; 4]>) {
+    let bits = match encoding {
+        NormalEncoding::Rounded => {
+            let unit: Vec<[f32; 4]> = normals.iter().map(|n| [n[0], n[1], n[2], 0.0]).collect();
+            let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&unit, 8);
+            let mut decoded = oct.clone();
+            meshopt::decode_filter_oct(&mut decoded);
+            return (oct, decoded);
+        }
+        NormalEncoding::Nearest(bits) => bits,
+    };
+    let one = (1i32 << (bits - 1)) - 1;
+    let s = f64::from(one);
+    // The four lattice points around each normal's octahedral coordinates
+    // (meshoptimizer's mapping: z the hemisphere axis), as filter input.
+    let mut candidates: [Vec<[i8; 4]>; 4] = std::array::from_fn(|_| Vec::with_capacity(normals.len()));
+    for n in normals {
+        let [x, y, z] = n.map(f64::from);
+        let l1 = x.abs() + y.abs() + z.abs();
+        let (x, y) = if l1 > 0.0 { (x / l1, y / l1) } else { (0.0, 0.0) };
+        let (u, v) = if z >= 0.0 { (x, y) } else { ((1.0 - y.abs()) * x.signum(), (1.0 - x.abs()) * y.signum()) };
+        let (fu, fv) = ((u * s).floor(), (v * s).floor());
+        for (c, (du, dv)) in candidates.iter_mut().zip([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]) {
+            c.push([(fu + du).clamp(-s, s) as i8, (fv + dv).clamp(-s, s) as i8, one as i8, 0]);
+        }
+    }
+    let decoded: Vec<Vec<[i8; 4]>> = candidates
+        .iter()
+        .map(|c| {
+            let mut d = c.clone();
+            meshopt::decode_filter_oct(&mut d);
+            d
+        })
+        .collect();
+    let mut oct = Vec::with_capacity(normals.len());
+    let mut out = Vec::with_capacity(normals.len());
+    for (i, n) in normals.iter().enumerate() {
+        let best = (0..4)
+            .max_by(|&a, &b| cosine(n, &decoded[a][i]).total_cmp(&cosine(n, &decoded[b][i])).then(b.cmp(&a)))
+            .expect("four candidates");
+        oct.push(candidates[best][i]);
+        out.push(decoded[best][i]);
+    }
+    (oct, out)
+}
+
+/// The cosine of the angle between `n` and an i8 normalized vector.
+pub fn cosine(n: &[f32; 3], d: &[i8; 4]) -> f64 {
+    let d = [0, 1, 2].map(|k| f64::from(d[k]));
+    let dot: f64 = (0..3).map(|k| d[k] * f64::from(n[k])).sum();
+    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    dot / (len(d) * len(n.map(f64::from))).max(f64::MIN_POSITIVE)
+}
 
 /// The binary chunk and the JSON arrays that describe it, as a .glb is
 /// built; `streams` lists the bufferViews `meshopt` compresses.
@@ -434,7 +589,12 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
 /// Three views instead of one per stream and primitive shorten the JSON and
 /// save each meshopt stream's header and tail. Returns each primitive's
 /// `attributes`, index accessor and morph target accessor.
-pub fn write_quantized(sink: &mut Sink, frame: &Frame, prims: &[PrimData]) -> Vec<(Value, usize, usize)> {
+pub fn write_quantized(
+    sink: &mut Sink,
+    frame: &Frame,
+    prims: &[PrimData],
+    normals: NormalEncoding,
+) -> Vec<(Value, usize, usize)> {
     let counts: Vec<usize> = prims.iter().map(|p| p.part.positions.len()).collect();
     let mut columns = vec![position_column(frame, prims), delta_column(frame, prims)];
     let mut names = vec!["POSITION", ""];
@@ -458,11 +618,9 @@ pub fn write_quantized(sink: &mut Sink, frame: &Frame, prims: &[PrimData]) -> Ve
     }
     let vertex = push_columns(sink, &columns, &counts, None);
 
-    // Normals through the 8-bit octahedral filter, and what it decodes to.
-    let unit: Vec<[f32; 4]> = prims.iter().flat_map(|p| p.normals.iter().map(|n| [n[0], n[1], n[2], 0.0])).collect();
-    let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&unit, 8);
-    let mut decoded = oct.clone();
-    meshopt::decode_filter_oct(&mut decoded);
+    // Normals through the octahedral filter, and what it decodes to.
+    let unit: Vec<[f32; 3]> = prims.iter().flat_map(|p| p.normals.iter().copied()).collect();
+    let (oct, decoded) = octahedral(&unit, normals);
     let mut first = 0;
     let mut parts = Vec::with_capacity(prims.len());
     for &n in &counts {
@@ -502,11 +660,17 @@ pub fn write_quantized(sink: &mut Sink, frame: &Frame, prims: &[PrimData]) -> Ve
     out
 }
 
-/// Compresses every stream with meshoptimizer (EXT_meshopt_compression):
-/// the compressed bytes become the new binary chunk (buffer 0) and the
-/// views keep their uncompressed layout in a fallback buffer 1 that holds
-/// no data. Returns buffer 1's byte length.
-pub fn meshopt_pack(sink: &mut Sink) -> usize {
+/// Compresses every stream with meshoptimizer (`codec`'s extension): the
+/// compressed bytes become the new binary chunk (buffer 0) and the views
+/// keep their uncompressed layout in a fallback buffer 1 that holds no
+/// data. Returns buffer 1's byte length.
+///
+/// The views could all start at 0 in buffer 1 (it needs only to be as long
+/// as the longest), 40 bytes of JSON less per chunk, but MeshLab (tinygltf)
+/// reads a buffer without `uri` as the GLB's binary chunk: it refuses the
+/// file only while buffer 1 is longer than that chunk, and with the shorter
+/// buffer it read compressed bytes as indices and crashed.
+pub fn meshopt_pack(sink: &mut Sink, codec: Meshopt) -> usize {
     let mut packed = Vec::new();
     for s in &sink.streams {
         let view = &mut sink.views[s.view];
@@ -517,7 +681,7 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
             let indices: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
             meshopt::encode_index_buffer(&indices, s.vertices).expect("a triangle list")
         } else {
-            encode_vertices(raw, s.stride)
+            encode_vertices(raw, s.stride, codec)
         };
         align4(&mut packed);
         view["buffer"] = 1.into();
@@ -531,7 +695,7 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
         if s.filtered.is_some() {
             ext["filter"] = "OCTAHEDRAL".into();
         }
-        view["extensions"] = json!({"EXT_meshopt_compression": ext});
+        view["extensions"] = json!({ codec.extension(): ext });
         packed.extend_from_slice(&encoded);
     }
     align4(&mut packed);
@@ -543,21 +707,22 @@ pub fn meshopt_pack(sink: &mut Sink) -> usize {
 /// texture attributes).
 const MAX_STRIDE: usize = 32;
 
-/// meshoptimizer's vertex codec, version 0 (the one EXT_meshopt_compression names).
-fn encode_vertices(raw: &[u8], stride: usize) -> Vec<u8> {
-    fn enc<const N: usize>(raw: &[u8]) -> Vec<u8> {
+/// meshoptimizer's vertex codec in the version and at the level `codec` uses.
+fn encode_vertices(raw: &[u8], stride: usize, codec: Meshopt) -> Vec<u8> {
+    fn enc<const N: usize>(raw: &[u8], codec: Meshopt) -> Vec<u8> {
         let v: Vec<[u8; N]> = raw.chunks_exact(N).map(|c| c.try_into().expect("N bytes")).collect();
-        meshopt::encode_vertex_buffer_level(&v, 2, Some(0)).expect("vertex encoding")
+        meshopt::encode_vertex_buffer_level(&v, codec.vertex_level(), Some(codec.vertex_version()))
+            .expect("vertex encoding")
     }
     match stride {
-        4 => enc::<4>(raw),
-        8 => enc::<8>(raw),
-        12 => enc::<12>(raw),
-        16 => enc::<16>(raw),
-        20 => enc::<20>(raw),
-        24 => enc::<24>(raw),
-        28 => enc::<28>(raw),
-        MAX_STRIDE => enc::<MAX_STRIDE>(raw),
+        4 => enc::<4>(raw, codec),
+        8 => enc::<8>(raw, codec),
+        12 => enc::<12>(raw, codec),
+        16 => enc::<16>(raw, codec),
+        20 => enc::<20>(raw, codec),
+        24 => enc::<24>(raw, codec),
+        28 => enc::<28>(raw, codec),
+        MAX_STRIDE => enc::<MAX_STRIDE>(raw, codec),
         _ => unreachable!("vertex strides are multiples of 4 bytes up to {MAX_STRIDE}"),
     }
 }
@@ -602,13 +767,13 @@ pub struct Decoded {
     pub step_m: [f64; 3],
 }
 
-/// Decodes a `quantize` or `meshopt` .glb into plain glTF; `None` for a
-/// file that uses neither extension.
+/// Decodes a `quantize`, `meshopt` or `meshopt-v1` .glb into plain glTF;
+/// `None` for a file that uses none of their extensions.
 pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
     let glb = gltf::Glb::from_slice(bytes).map_err(|e| format!("not a GLB: {e}"))?;
     let mut json: Value = serde_json::from_slice(&glb.json).map_err(|e| format!("bad JSON: {e}"))?;
     let used: Vec<&str> = json["extensionsUsed"].as_array().into_iter().flatten().filter_map(Value::as_str).collect();
-    if !used.iter().any(|e| *e == "KHR_mesh_quantization" || *e == "EXT_meshopt_compression") {
+    if !used.iter().any(|e| *e == "KHR_mesh_quantization" || MESHOPT_EXTENSIONS.contains(e)) {
         return Ok(None);
     }
     let bin: &[u8] = glb.bin.as_deref().unwrap_or(&[]);
@@ -699,7 +864,7 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
         let slice = |off: usize, len: usize| {
             bin.get(off..off + len).ok_or_else(|| format!("bufferView {v} lies outside the binary chunk"))
         };
-        let bytes = match view["extensions"].get("EXT_meshopt_compression") {
+        let bytes = match MESHOPT_EXTENSIONS.iter().find_map(|e| view["extensions"].get(e)) {
             Some(m) => {
                 if num(&m["buffer"]) != Some(0) {
                     return Err(format!("bufferView {v}: compressed data outside the binary chunk"));

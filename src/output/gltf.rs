@@ -12,17 +12,19 @@
 //! record) are plain JSON, and the whole document is a few dozen lines.
 //! Files are read back with the `gltf` crate (verify, inspect, tests).
 //!
-//! With `compress = "quantize"` or `"meshopt"` the vertex data is written by
-//! [`super::compress`] instead (KHR_mesh_quantization in three bufferViews
-//! the surface and skirt share, then EXT_meshopt_compression), and the node
-//! also carries a `scale`; the rest of the document is the same but for the
-//! primitive mode, left at its default.
+//! With `compress = "quantize"`, `"meshopt"` or `"meshopt-v1"` the vertex
+//! data is written by [`super::compress`] instead (KHR_mesh_quantization in
+//! three bufferViews the surface and skirt share, then EXT_ or
+//! KHR_meshopt_compression), and the node also carries a `scale`; the rest
+//! of the document is the same but for the primitive mode, left at its
+//! default, and with `meshopt-v1` the names and the default roughness, left
+//! out.
 
 use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
-use crate::output::compress::{self, Quantization, QuantizeError, Sink};
+use crate::output::compress::{self, Meshopt, NormalEncoding, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
 /// What the writer needs besides the chunk itself.
@@ -35,8 +37,11 @@ pub struct GlbContext<'a> {
     pub vertex_cache: VertexCache,
     /// The quantization grid when vertex data is quantized (None: f32).
     pub quantization: Option<&'a Quantization>,
-    /// Compress the quantized streams with meshoptimizer (needs `quantization`).
-    pub meshopt: bool,
+    /// Compress the quantized streams with meshoptimizer for this extension
+    /// (needs `quantization`).
+    pub meshopt: Option<Meshopt>,
+    /// How quantized normals are chosen (see [`compress::octahedral`]).
+    pub normals: NormalEncoding,
 }
 
 /// The chunk-local origin: the chunk's west/north corner, and vertically the
@@ -116,7 +121,7 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     let mut sink = Sink::default();
     let written = match &frame {
         None => prims.iter().map(|p| float_attributes(&mut sink, p, origin)).collect(),
-        Some(f) => compress::write_quantized(&mut sink, f, &prims),
+        Some(f) => compress::write_quantized(&mut sink, f, &prims, ctx.normals),
     };
     let prims: Vec<Value> = parts
         .iter()
@@ -136,7 +141,8 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
             prim
         })
         .collect();
-    let fallback = (frame.is_some() && ctx.meshopt).then(|| compress::meshopt_pack(&mut sink));
+    let codec = ctx.meshopt.filter(|_| frame.is_some());
+    let fallback = codec.map(|c| compress::meshopt_pack(&mut sink, c));
     let Sink { mut bin, mut views, accessors, .. } = sink;
     let k = chunk.key;
     let ((x0, x1), (z0, z1)) = chunk.footprint;
@@ -173,8 +179,8 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     });
     if let Some(f) = &frame {
         doc["nodes"][0]["scale"] = json!(f.scale);
-        let used = match fallback {
-            Some(_) => json!(["KHR_mesh_quantization", "EXT_meshopt_compression"]),
+        let used = match codec {
+            Some(c) => json!(["KHR_mesh_quantization", c.extension()]),
             None => json!(["KHR_mesh_quantization"]),
         };
         doc["extensionsUsed"] = used.clone();
@@ -212,12 +218,22 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         doc["bufferViews"] = views.into();
         doc["buffers"] = json!([{"byteLength": bin.len()}]);
     }
-    if let Some(n) = fallback {
+    if let (Some(c), Some(n)) = (codec, fallback) {
         // The compressed streams' uncompressed layout: no data of its own.
         doc["buffers"] = json!([
             {"byteLength": bin.len()},
-            {"byteLength": n, "extensions": {"EXT_meshopt_compression": {"fallback": true}}},
+            {"byteLength": n, "extensions": {c.extension(): {"fallback": true}}},
         ]);
+    }
+    if codec == Some(Meshopt::Khr) {
+        // Only where bytes are the point and no earlier file is to be
+        // matched: the names only label what the chunk record says, and
+        // roughness 1 is the default.
+        for object in ["nodes", "meshes", "materials"] {
+            doc[object][0].as_object_mut().expect("an object").remove("name");
+        }
+        let pbr = doc["materials"][0]["pbrMetallicRoughness"].as_object_mut().expect("an object");
+        pbr.remove("roughnessFactor");
     }
     Ok(glb(&serde_json::to_vec(&doc).expect("JSON of plain values"), &bin))
 }

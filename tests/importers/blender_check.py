@@ -134,7 +134,7 @@ def check_chunk(tileset, ts, label, key, parent_key, failures):
     if "parent" not in names:
         fail(f"no shape key 'parent' (shape keys: {names})")
     elif not ref.decodable:
-        # EXT_meshopt_compression: the reference cannot decode the deltas, so
+        # EXT_/KHR_meshopt_compression: the reference cannot decode the deltas, so
         # only the key's presence is checked.
         print(f"blender {label} {glbref.name(key)}: {ref.extensions} not decodable here, shape key values unchecked")
     else:

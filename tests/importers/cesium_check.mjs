@@ -17,7 +17,8 @@
 // - with the camera close to a deepest-level tile, refinement reaches the
 //   deepest level (tileVisible events of the last frame, by the tiles'
 //   extras.terrachunk.level).
-// Prints a short report; exits 1 on any failure.
+// Prints a short report (with the glTF extensions the target tile requires,
+// so that a --compress run shows what Cesium decoded); exits 1 on any failure.
 
 import fs from "node:fs";
 import http from "node:http";
@@ -92,6 +93,18 @@ const target = allTiles(ts.root)
   .map((t) => [Math.hypot(t.boundingVolume.box[0] - cx, t.boundingVolume.box[1] - cy), t.extras.terrachunk])
   .sort((a, b) => a[0] - b[0])[0][1];
 const targetKey = `${target.level}/${target.x}/${target.y}`;
+
+// The glTF extensions the target tile requires (KHR_mesh_quantization and
+// EXT_ or KHR_meshopt_compression with --compress): what Cesium had to decode.
+function glbJson(file) {
+  const b = fs.readFileSync(file);
+  return JSON.parse(b.subarray(20, 20 + b.readUInt32LE(12)).toString("utf8"));
+}
+const targetUri = allTiles(ts.root).find((t) => {
+  const e = t.extras.terrachunk;
+  return `${e.level}/${e.x}/${e.y}` === targetKey;
+}).content.uri;
+const required = glbJson(path.join(tilesetDir, targetUri)).extensionsRequired ?? [];
 
 // ---- A loopback-only static server --------------------------------------
 const roots = {
@@ -211,6 +224,7 @@ const fmt = (o) => Object.entries(o).map(([l, n]) => `L${l}:${n}`).join(" ");
 const version = JSON.parse(fs.readFileSync(path.join(here, "node_modules", "cesium", "package.json"), "utf8")).version;
 console.log(`cesium ${version} in ${(await browser.version?.()) ?? "chromium"}, tileset ${ex.source.join(",")} (${deepest + 1} levels, tau ${ex.tau_max_px} px)`);
 console.log(`cesium tiles loaded by level ${fmt(report.loadedByLevel)}; overview shows ${fmt(report.farVisibleByLevel)}`);
+console.log(`cesium content: ${targetUri} requires ${required.length ? required.join(", ") : "no glTF extension"}`);
 console.log(`cesium close to ${targetKey} (range ${close.range.toFixed(0)} m, refinement needs < ${close.dMax.toFixed(0)} m): shows ${fmt(report.visibleByLevel)}; ${report.failed.length} tile failures, ${served} files served, ${outside.length} outside requests`);
 if (placement) {
   console.log(

@@ -7,9 +7,9 @@ morph target "parent" of y-deltas that puts every vertex on the parent
 chunk's surface.
 
 Accessors are decoded for plain and quantized (KHR_mesh_quantization)
-buffers; a buffer view compressed with EXT_meshopt_compression cannot be
-decoded here, and `Chunk.decodable` says so (its counts still come from the
-JSON, which meshopt leaves intact).
+buffers; a buffer view compressed with EXT_ or KHR_meshopt_compression
+cannot be decoded here, and `Chunk.decodable` says so (its counts still come
+from the JSON, which meshopt leaves intact).
 """
 
 import json
@@ -50,7 +50,9 @@ class Chunk:
         doc = self.doc
         self.extensions = sorted(doc.get("extensionsUsed", []))
         self.decodable = not any(
-            "EXT_meshopt_compression" in (bv.get("extensions") or {}) for bv in doc.get("bufferViews", [])
+            ext in (bv.get("extensions") or {})
+            for bv in doc.get("bufferViews", [])
+            for ext in ("EXT_meshopt_compression", "KHR_meshopt_compression")
         )
         node = doc["nodes"][doc["scenes"][doc.get("scene", 0)]["nodes"][0]]
         self.node = node

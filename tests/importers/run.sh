@@ -6,7 +6,7 @@
 # builds a georeferenced, textured, skirted fixture with the terrachunk binary,
 # runs the three checkers and exits non-zero if any of them finds a mismatch.
 #
-#   tests/importers/run.sh [--compress none|quantize|meshopt] [--dem DEM]... [--bin TERRACHUNK]
+#   tests/importers/run.sh [--compress none|quantize|meshopt|meshopt-v1] [--dem DEM]... [--bin TERRACHUNK]
 #                          [--screenshots DIR] [--has-nodata]
 #
 # By default two fixtures: Mount St Helens (UTM 10N on NAD27, 4 levels) and
