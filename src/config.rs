@@ -25,10 +25,12 @@ pub struct Config {
     /// Override the ground spacing, metres `[s_x, s_z]` (> 0). Default: the
     /// file's own (1 m for files without a georeference).
     pub spacing_m: Option<[f64; 2]>,
-    /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=250
-    /// (a 251 × 251 chunk at full density plus skirts still fits u16
-    /// indices). Default: unset, chosen from the data so that a leaf holds
-    /// about 4 000 vertices on average.
+    /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=4096.
+    /// Up to 250 always works (a 251 × 251 chunk at full density plus skirts
+    /// still fits u16 indices); a wider leaf that needs more than 65 535
+    /// vertices to meet `max_error_m` stops the build with an error that
+    /// says so. Default: unset, chosen from the data (the shallowest tree
+    /// whose chunks hold at most 8 000 vertices on average).
     pub leaf_cells: Option<u32>,
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default: unset, which means `strip`
@@ -264,9 +266,9 @@ impl Config {
             return bad("spacing_m", format!("{s:?}"), "must be finite metres > 0");
         }
         if let Some(c) = self.leaf_cells
-            && !(2..=250).contains(&c)
+            && !(2..=4096).contains(&c)
         {
-            return bad("leaf_cells", c.to_string(), "must be within 2..=250 cells");
+            return bad("leaf_cells", c.to_string(), "must be within 2..=4096 cells");
         }
         if !(2..=16384).contains(&self.max_texture_px) {
             return bad("max_texture_px", self.max_texture_px.to_string(), "must be within 2..=16384 texels");

@@ -21,7 +21,7 @@ use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
-use crate::mesh::{ChunkMesh, MeshError, dem_normal};
+use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
@@ -82,6 +82,19 @@ pub enum BuildError {
         /// δ(L), metres.
         delta_m: f64,
     },
+    /// A `leaf_cells` setting above [`DENSE_LEAF_CELLS`] left a leaf that
+    /// cannot meet its δ within u16 indices (refine levels keep the leaf's
+    /// footprint, so they cannot help).
+    #[error(
+        "leaf_cells = {leaf_cells}: {source}; leaves of at most {DENSE_LEAF_CELLS} cells always fit \
+         (or leave leaf_cells unset to choose from the data)"
+    )]
+    LeafTooWide {
+        /// The setting.
+        leaf_cells: u32,
+        /// The chunk that did not fit.
+        source: MeshError,
+    },
     /// Vertex data cannot be quantized as `compress` asks.
     #[error(transparent)]
     Quantize(#[from] QuantizeError),
@@ -100,6 +113,7 @@ impl BuildError {
     pub fn exit_code(&self) -> i32 {
         match self {
             BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
+            BuildError::LeafTooWide { .. } => 2,
             BuildError::Texture(TextureError::Encode { .. }) => 1,
             BuildError::Texture(_) => 2,
             BuildError::Quantize(QuantizeError::Range { .. }) => 1,
@@ -335,6 +349,14 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
                 leaf_cells = auto_leaf_cells(&grid, opts.config.max_error_m, DENSE_LEAF_CELLS);
                 refine = 0;
             }
+            // A chosen wide leaf that is too dense at max_error_m: the last
+            // level always has the leaves' footprint and δ, so refine levels
+            // cannot help.
+            Err(BuildError::Mesh(source @ MeshError::TooDense { level, .. }))
+                if leaf_cells > DENSE_LEAF_CELLS && level == tree.depth() =>
+            {
+                return Err(BuildError::LeafTooWide { leaf_cells, source });
+            }
             Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
             Err(e) => return Err(e),
         }
@@ -380,9 +402,16 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
             }
         }
     }
-    // Vertices per valid sample at δ: over all windows, and the densest one.
+    // At δ: interior vertices per valid sample, border vertices per cell of
+    // border, and the densest window's vertices per valid sample. A window's
+    // border is refined in 1-D as a chunk's is, and costs a 64-cell window
+    // far more per sample than a wide chunk: counting it per sample (as
+    // this did first) put Fuji's 2-level tree at 10 m at 9 200 vertices per
+    // chunk where the build makes 7 700 (now 8 200; 3 levels at 5 m: 5 200
+    // estimated, 5 100 built).
     let density = |delta_m: f64| {
-        let (mut vertices, mut samples, mut densest) = (0usize, 0usize, 0.0f64);
+        let (mut interior, mut border, mut samples, mut edge_cells, mut densest) =
+            (0usize, 0usize, 0usize, 0usize, 0.0f64);
         for &(xs, zs, valid) in &windows {
             let spec = ChunkSpec {
                 key: ChunkKey { level: 0, x: 0, y: 0 },
@@ -394,16 +423,28 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
                 cancel: None,
             };
             if let Ok(mesh) = build_chunk(grid, &spec) {
-                vertices += mesh.vertices.len();
+                let on_border = |v: &&MeshVertex| {
+                    v.x == f64::from(xs.0) || v.x == f64::from(xs.1) || v.z == f64::from(zs.0) || v.z == f64::from(zs.1)
+                };
+                let b = mesh.vertices.iter().filter(on_border).count();
+                border += b;
+                interior += mesh.vertices.len() - b;
+                edge_cells += 2 * (xs.1 - xs.0 + zs.1 - zs.0) as usize;
                 samples += valid;
                 densest = densest.max(mesh.vertices.len() as f64 / valid as f64);
             }
         }
-        if samples == 0 { (0.0, 0.0) } else { (vertices as f64 / samples as f64, densest) }
+        if samples == 0 {
+            Density::default()
+        } else {
+            Density { interior: interior as f64 / samples as f64, border: border as f64 / edge_cells as f64, densest }
+        }
     };
     let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
+    let valid_share = valid / (grid.width * grid.height) as f64;
+    let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
     // Density by k, for δ = max_error_m · 2^k.
-    let mut by_k: Vec<Option<(f64, f64)>> = vec![None; 32];
+    let mut by_k: Vec<Option<Density>> = vec![None; 32];
     let mut density_k = |k: usize, delta_m: f64| *by_k[k.min(31)].get_or_insert_with(|| density(delta_m));
     // Every distinct tree: its leaf width is the widest chunk after d splits.
     let full = ChunkTree::plan(grid.width, grid.height, max_error_m, 1, 0);
@@ -417,7 +458,7 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
         let fits = c <= DENSE_LEAF_CELLS
             || c <= widest && {
                 let side = f64::from(c + 1);
-                density_k(0, max_error_m).1 * side * side <= MAX_VERTICES as f64 / 2.0
+                density_k(0, max_error_m).densest * side * side <= MAX_VERTICES as f64 / 2.0
             };
         if !fits {
             continue;
@@ -425,12 +466,32 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
         let tree = ChunkTree::plan(grid.width, grid.height, max_error_m, c, 0);
         let levels = tree.delta_m.len();
         let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
-        let vertices: f64 = (0..levels).map(|l| density_k(levels - 1 - l, tree.delta_m[l]).0 * valid).sum();
+        // A level: its interior at the interior density, and every chunk's
+        // four borders (each shared border written by both chunks) at the
+        // border density, scaled by the share of valid samples.
+        let vertices: f64 = (0..levels)
+            .map(|l| {
+                let d = density_k(levels - 1 - l, tree.delta_m[l]);
+                let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
+                d.interior * valid + d.border * perimeter * valid_share
+            })
+            .sum();
         if vertices / chunks as f64 <= CHUNK_VERTICES {
             return c;
         }
     }
     deepest
+}
+
+/// What [`auto_leaf_cells`] measures on its windows at one δ.
+#[derive(Clone, Copy, Default)]
+struct Density {
+    /// Vertices off the window's border per valid sample.
+    interior: f64,
+    /// Vertices on the window's border per cell of border.
+    border: f64,
+    /// The densest window's vertices per valid sample.
+    densest: f64,
 }
 
 struct Timers {

@@ -25,6 +25,7 @@
 //! | bathymetry to −10 994 m | verifies; boxes below −10 km |
 //! | max_error 1 mm on whole metres / above the relief | exact / one chunk |
 //! | a bump exactly max_error high / 1/64 m higher | not a vertex, error exactly δ / meshed |
+//! | `leaf_cells` 256 on hills / 300 on noise | 2 levels, verifies / refused: names the setting |
 
 use std::path::{Path, PathBuf};
 
@@ -638,4 +639,26 @@ fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
     assert!(b.report.leaf_cells <= 250, "leaves of {} cells", b.report.leaf_cells);
     assert!(b.report.discarded_s > 0.0, "the wide attempt was discarded");
     assert!(leaf(&b).max_error_m <= 1.0);
+}
+
+/// A user may ask for leaves wider than 250 cells (fewer levels, fewer
+/// nested lines): sparse ground builds with them; where a chosen wide leaf
+/// needs more than 65 535 vertices, refine levels cannot help (they keep the
+/// footprint), so the build stops with exit 2, says which setting to change,
+/// and leaves nothing behind.
+#[test]
+fn a_chosen_wide_leaf_builds_on_sparse_ground_and_is_refused_on_noise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "hills.asc", 513, 513, hills);
+    let b = survives(&dem, config(20.0, 256));
+    assert_eq!(b.report.leaf_cells, 256);
+    assert!(b.report.levels.iter().all(|l| l.max_error_m <= l.delta_m));
+
+    let dem = write_asc(tmp.path(), "noise.asc", 301, 301, white_noise);
+    let cfg = tmp.path().join("wide.toml");
+    std::fs::write(&cfg, "max_error_m = 0.5\nleaf_cells = 300\n").unwrap();
+    let out = tmp.path().join("out");
+    let args = ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()];
+    assert_bad_input(&args, &out, "leaf_cells = 300");
+    assert_bad_input(&args, &out, "leaves of at most 250 cells always fit");
 }
