@@ -26,6 +26,7 @@
 //! | max_error 1 mm on whole metres / above the relief | exact / one chunk |
 //! | a bump exactly max_error high / 1/64 m higher | not a vertex, error exactly δ / meshed |
 //! | `leaf_cells` 256 on hills / 300 on noise | 2 levels, verifies / refused: names the setting |
+//! | ETOPO2 France–Italy at 1 m: a line sample exactly δ off beside a cut corner | verifies (was refused as a mesher bug) |
 
 use std::path::{Path, PathBuf};
 
@@ -661,4 +662,20 @@ fn a_chosen_wide_leaf_builds_on_sparse_ground_and_is_refused_on_noise() {
     let args = ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()];
     assert_bad_input(&args, &out, "leaf_cells = 300");
     assert_bad_input(&args, &out, "leaves of at most 250 cells always fit");
+}
+
+/// Found by the savings benchmark on ETOPO2 (France and Italy, integer
+/// metres, bathymetry to −5 035 m) at 1 m: a sample on a dividing line,
+/// refined in 1-D to exactly δ between two sample vertices, read
+/// 8.000000000000004 m against δ = 8 m from a triangle with a cut-point
+/// corner. The mesher counted it with the cut-point samples, whose reading
+/// is not snapped to δ, and the build stopped with "the mesher left a
+/// sample beyond δ". Line samples now count with the samples the output
+/// writes exactly.
+#[test]
+fn a_line_sample_exactly_delta_off_beside_a_cut_corner_builds() {
+    let dem = crate::common::fixture("france_italy_etopo2.tif");
+    let b = survives(&dem, Config { max_error_m: 1.0, ..Config::default() });
+    assert!(b.report.levels.iter().all(|l| l.max_error_m <= l.delta_m), "{:#?}", b.report.levels);
+    assert_eq!(leaf(&b).max_error_m, 1.0, "integer heights: some sample is exactly 1 m off");
 }

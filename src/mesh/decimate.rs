@@ -941,11 +941,19 @@ fn finish(
             }
             _ => {
                 seeds.push(None);
-                let class = if cut { &mut max_err_cut } else { &mut max_err };
+                // A sample on a border or dividing line was decided in 1-D
+                // against its interval's own target: δ where both ends are
+                // samples, so it may be exactly δ off even in a triangle
+                // with a cut corner (it lies on the exact edge, where that
+                // corner weighs nothing). It counts in the lattice class,
+                // whose δ reading is snapped.
                 scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
-                    if !lines.is_vertex(i, j) {
-                        *class = class.max(e);
+                    if lines.is_vertex(i, j) {
+                        return;
                     }
+                    let on_line = lines.row_is_line(i) || lines.col_is_line(j);
+                    let class = if cut && !on_line { &mut max_err_cut } else { &mut max_err };
+                    *class = class.max(e);
                 })
             }
         };
