@@ -738,40 +738,45 @@ impl TriHeap {
         }
     }
 
-    fn swap(&mut self, a: usize, b: usize) {
-        self.heap.swap(a, b);
-        self.pos[self.heap[a].t as usize] = a as u32;
-        self.pos[self.heap[b].t as usize] = b as u32;
-    }
-
+    // Both sifts move a hole rather than swapping: each entry passed over
+    // is written once, and the moving one only where it comes to rest (the
+    // same arrangement as swapping, with half the writes).
     fn up(&mut self, mut k: usize) -> usize {
+        let c = self.heap[k];
         while k > 0 {
             let p = (k - 1) / 2;
-            if self.heap[k] <= self.heap[p] {
+            if c <= self.heap[p] {
                 break;
             }
-            self.swap(k, p);
+            self.place(k, self.heap[p]);
             k = p;
         }
+        self.place(k, c);
         k
     }
 
     fn down(&mut self, mut k: usize) {
+        let c = self.heap[k];
+        let n = self.heap.len();
         loop {
             let (l, r) = (2 * k + 1, 2 * k + 2);
-            let mut m = k;
-            if l < self.heap.len() && self.heap[l] > self.heap[m] {
-                m = l;
+            if l >= n {
+                break;
             }
-            if r < self.heap.len() && self.heap[r] > self.heap[m] {
-                m = r;
+            let m = if r < n && self.heap[r] > self.heap[l] { r } else { l };
+            if self.heap[m] <= c {
+                break;
             }
-            if m == k {
-                return;
-            }
-            self.swap(k, m);
+            self.place(k, self.heap[m]);
             k = m;
         }
+        self.place(k, c);
+    }
+
+    #[inline]
+    fn place(&mut self, k: usize, c: Candidate) {
+        self.pos[c.t as usize] = k as u32;
+        self.heap[k] = c;
     }
 }
 

@@ -20,6 +20,27 @@
 
 use robust::{Coord, incircle, orient2d};
 
+/// `robust::incircle`'s sign, computed directly where that is exact: on
+/// whole-number coordinates within 4 096 of `d` every product and sum below
+/// stays under 2^52. Grid samples are such points, and four corners of a
+/// grid square are cocircular (determinant exactly 0), the case where the
+/// adaptive predicate falls through to its slowest, exact stage.
+#[inline]
+fn in_circle(a: Coord<f64>, b: Coord<f64>, c: Coord<f64>, d: Coord<f64>) -> f64 {
+    let whole = |v: f64| f64::from(v as i32) == v;
+    let [adx, ady, bdx, bdy, cdx, cdy] = [a.x - d.x, a.y - d.y, b.x - d.x, b.y - d.y, c.x - d.x, c.y - d.y];
+    if [a.x, a.y, b.x, b.y, c.x, c.y, d.x, d.y].iter().all(|&v| whole(v))
+        && [adx, ady, bdx, bdy, cdx, cdy].iter().all(|&v| v.abs() <= 4096.0)
+    {
+        let alift = adx * adx + ady * ady;
+        let blift = bdx * bdx + bdy * bdy;
+        let clift = cdx * cdx + cdy * cdy;
+        alift * (bdx * cdy - cdx * bdy) + blift * (cdx * ady - adx * cdy) + clift * (adx * bdy - bdx * ady)
+    } else {
+        incircle(a, b, c, d)
+    }
+}
+
 /// No half-edge: the twin of a border half-edge.
 pub const NONE: u32 = u32::MAX;
 
@@ -321,7 +342,7 @@ impl Tin {
             let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
             let (pr, pl, p0) = (self.tv[a as usize], self.tv[an as usize], self.tv[ap as usize]);
             let p1 = self.tv[bp as usize];
-            if incircle(self.coord(pr), self.coord(pl), self.coord(p0), self.coord(p1)) <= 0.0 {
+            if in_circle(self.coord(pr), self.coord(pl), self.coord(p0), self.coord(p1)) <= 0.0 {
                 continue;
             }
             let (t, u) = (a / 3, b / 3);
@@ -384,6 +405,44 @@ mod tests {
 
     fn v(x: f64, z: f64) -> V {
         V { x, z, h: 0.0, ph: 0.0 }
+    }
+
+    /// The direct incircle on grid points has robust's sign everywhere,
+    /// cocircular grid squares (0) and the 4 096-cell limit included, and
+    /// off-grid points go to robust.
+    #[test]
+    fn in_circle_has_the_exact_sign() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = |m: u64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % m) as f64
+        };
+        let c = |x: f64, y: f64| Coord { x, y };
+        let sign = |v: f64| {
+            if v > 0.0 {
+                1
+            } else if v < 0.0 {
+                -1
+            } else {
+                0
+            }
+        };
+        let (mut zeros, mut cases) = (0, 0);
+        for k in 0..200_000 {
+            let span = if k % 2 == 0 { 5 } else { 8193 };
+            let base = next(100_000);
+            let p: Vec<Coord<f64>> = (0..4).map(|_| c(base + next(span), base + next(span))).collect();
+            let off = if k % 7 == 0 { 0.5 } else { 0.0 };
+            let d = c(p[3].x + off, p[3].y);
+            let (fast, exact) = (in_circle(p[0], p[1], p[2], d), incircle(p[0], p[1], p[2], d));
+            assert_eq!(sign(fast), sign(exact), "{p:?} {d:?}");
+            zeros += usize::from(exact == 0.0);
+            cases += 1;
+        }
+        assert!(zeros > 1000, "{zeros} cocircular cases of {cases}");
+        assert_eq!(in_circle(c(0.0, 0.0), c(1.0, 0.0), c(1.0, 1.0), c(0.0, 1.0)), 0.0);
     }
 
     fn square() -> Tin {
