@@ -575,8 +575,14 @@ fn print_summary(r: &Report, out: &std::path::Path) {
     }
     if r.refine_levels > 0 {
         println!(
-            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than 65 535 vertices (found by attempts that took {:.1} s)",
-            r.refine_levels, r.discarded_s
+            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than 65 535 vertices ({})",
+            r.refine_levels,
+            match (r.refine_estimated, r.refine_levels - r.refine_estimated) {
+                (_, 0) => "estimated from the data, not built".to_string(),
+                (0, _) => format!("found by attempts that took {:.1} s", r.discarded_s),
+                (e, _) =>
+                    format!("{e} estimated from the data, the rest found by attempts that took {:.1} s", r.discarded_s),
+            }
         );
     }
     if let Some(b) = r.peak_rss_bytes {

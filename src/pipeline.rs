@@ -25,7 +25,7 @@ use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
-use crate::quadtree::{ChunkKey, ChunkTree};
+use crate::quadtree::{ChunkKey, ChunkTree, Span};
 use crate::texture::source::{generate, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureError, TextureExtras, TextureSource, Texturer};
 
@@ -201,6 +201,10 @@ pub struct Report {
     /// Levels added at the bottom (same footprint, half the δ) so that the
     /// coarser chunks fit u16 indices.
     pub refine_levels: u32,
+    /// Of `refine_levels`, those taken from the estimate alone (a top chunk
+    /// surely too dense with fewer: [`Estimate::refine_levels`]), not from
+    /// an attempt.
+    pub refine_estimated: u32,
     /// Wall seconds of the attempts with fewer refine levels that stopped at
     /// a chunk too dense for u16 indices (part of `seconds.chunks`).
     pub discarded_s: f64,
@@ -325,11 +329,13 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
         by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
     });
+    let mut estimate = Estimate::new(&grid, opts.config.max_error_m);
     let mut leaf_cells = match opts.config.leaf_cells {
         Some(c) => c,
-        None => auto_leaf_cells(&grid, opts.config.max_error_m, widest_leaf),
+        None => estimate.leaf_cells(widest_leaf),
     };
-    let mut refine = 0;
+    let mut refine = estimate.refine_levels(leaf_cells);
+    let mut estimated = refine;
     let attempts = Instant::now();
     loop {
         let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, leaf_cells, refine);
@@ -339,6 +345,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
+                report.refine_estimated = estimated;
                 report.discarded_s = discarded.as_secs_f64();
                 report.leaf_cells = leaf_cells;
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
@@ -346,8 +353,9 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             // Leaves wider than a dense leaf may be: refine levels keep their
             // footprint and cannot help, narrower leaves do.
             Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > DENSE_LEAF_CELLS => {
-                leaf_cells = auto_leaf_cells(&grid, opts.config.max_error_m, DENSE_LEAF_CELLS);
-                refine = 0;
+                leaf_cells = estimate.leaf_cells(DENSE_LEAF_CELLS);
+                refine = estimate.refine_levels(leaf_cells);
+                estimated = refine;
             }
             // A chosen wide leaf that is too dense at max_error_m: the last
             // level always has the leaves' footprint and δ, so refine levels
@@ -357,7 +365,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             {
                 return Err(BuildError::LeafTooWide { leaf_cells, source });
             }
-            Err(BuildError::Mesh(_)) if refine < 24 => refine += 1,
+            Err(BuildError::Mesh(_)) if refine < MAX_REFINE_LEVELS => refine += 1,
             Err(e) => return Err(e),
         }
     }
@@ -372,46 +380,60 @@ pub const CHUNK_VERTICES: f64 = 8000.0;
 /// (251² samples, plus the cut points on its lines).
 pub const DENSE_LEAF_CELLS: u32 = 250;
 
-/// The leaf width, in cells, of the shallowest tree whose chunks hold at most
-/// [`CHUNK_VERTICES`] vertices on average (leaves no narrower than 32 cells).
-/// Fewer levels nest fewer constraints into the leaves: on Fuji at 10 m, two
-/// levels instead of three take the leaves from 1.24 to 1.06 times the
-/// triangles of one unconstrained TIN. A level of δ holds about (valid
-/// samples × vertices per sample at δ) vertices whatever its chunking, so
-/// the average follows from the planned tree and the density at each level's
-/// δ, measured with one greedy TIN on each of up to 4 × 4 windows of 64 × 64
-/// cells spread over the grid. Leaves wider than [`DENSE_LEAF_CELLS`] are
-/// chosen only up to `widest` cells and where the densest window says they
-/// hold under half of 65 535 vertices (see [`build_into`]).
-pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
-    let cells = 64.min(grid.width - 1).min(grid.height - 1);
-    let starts = |n: usize| {
-        let k = ((n - 1) / cells).clamp(1, 4);
-        (0..k).map(move |w| if k == 1 { 0 } else { w * (n - 1 - cells) / (k - 1) }).collect::<Vec<_>>()
-    };
-    let mut windows = Vec::new();
-    for &z in &starts(grid.height) {
-        for &x in &starts(grid.width) {
-            let valid = (z..=z + cells)
-                .map(|i| {
-                    grid.heights[i * grid.width + x..=i * grid.width + x + cells].iter().filter(|h| !h.is_nan()).count()
-                })
-                .sum::<usize>();
-            if valid > 0 {
-                windows.push(((x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32), valid));
+/// Vertex densities of greedy TINs on sample windows, by δ: what the leaf
+/// width and the refine levels are chosen from before anything is built.
+///
+/// A level of δ holds about (valid samples × vertices per sample at δ)
+/// vertices whatever its chunking, so a tree's chunk sizes follow from its
+/// plan and the density at each level's δ, measured with one greedy TIN on
+/// each of up to 4 × 4 windows of 64 × 64 cells spread over the grid. Each
+/// δ = max_error_m · 2^k is measured once, when first asked for.
+pub struct Estimate<'g> {
+    grid: &'g Grid<'g>,
+    max_error_m: f64,
+    windows: Vec<(Span, Span, usize)>,
+    by_k: Vec<Option<Density>>,
+    valid: f64,
+}
+
+impl<'g> Estimate<'g> {
+    /// Chooses the windows; measures nothing yet.
+    pub fn new(grid: &'g Grid<'g>, max_error_m: f64) -> Self {
+        let cells = 64.min(grid.width - 1).min(grid.height - 1);
+        let starts = |n: usize| {
+            let k = ((n - 1) / cells).clamp(1, 4);
+            (0..k).map(move |w| if k == 1 { 0 } else { w * (n - 1 - cells) / (k - 1) }).collect::<Vec<_>>()
+        };
+        let mut windows = Vec::new();
+        for &z in &starts(grid.height) {
+            for &x in &starts(grid.width) {
+                let valid = valid_in(grid, (x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32));
+                if valid > 0 {
+                    windows.push(((x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32), valid));
+                }
             }
         }
+        let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
+        Estimate { grid, max_error_m, windows, by_k: vec![None; 32], valid }
     }
-    // At δ: interior vertices per valid sample, border vertices per cell of
-    // border, and the densest window's vertices per valid sample. A window's
-    // border is refined in 1-D as a chunk's is, and costs a 64-cell window
-    // far more per sample than a wide chunk: counting it per sample (as
-    // this did first) put Fuji's 2-level tree at 10 m at 9 200 vertices per
-    // chunk where the build makes 7 700 (now 8 200; 3 levels at 5 m: 5 200
-    // estimated, 5 100 built).
-    // The windows' TINs are independent: meshed in parallel, summed in order.
-    let density = |delta_m: f64| {
-        let measured: Vec<Option<(usize, usize, usize, usize)>> = windows
+
+    /// The density at δ = max_error_m · 2^k: interior vertices per valid
+    /// sample, border vertices per cell of border, and the densest window's
+    /// vertices per valid sample. A window's border is refined in 1-D as a
+    /// chunk's is, and costs a 64-cell window far more per sample than a
+    /// wide chunk: counting it per sample (as this did first) put Fuji's
+    /// 2-level tree at 10 m at 9 200 vertices per chunk where the build
+    /// makes 7 700 (now 8 200; 3 levels at 5 m: 5 200 estimated, 5 100
+    /// built). The windows' TINs are independent: meshed in parallel,
+    /// summed in order.
+    fn density(&mut self, k: usize) -> Density {
+        let k = k.min(31);
+        if let Some(d) = self.by_k[k] {
+            return d;
+        }
+        let (grid, delta_m) = (self.grid, self.max_error_m * 2f64.powi(k as i32));
+        let measured: Vec<Option<(usize, usize, usize, usize)>> = self
+            .windows
             .par_iter()
             .map(|&(xs, zs, valid)| {
                 let spec = ChunkSpec {
@@ -440,56 +462,126 @@ pub fn auto_leaf_cells(grid: &Grid, max_error_m: f64, widest: u32) -> u32 {
             samples += valid;
             densest = densest.max(all as f64 / valid as f64);
         }
-        if samples == 0 {
+        let d = if samples == 0 {
             Density::default()
         } else {
             Density { interior: interior as f64 / samples as f64, border: border as f64 / edge_cells as f64, densest }
-        }
-    };
-    let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
-    let valid_share = valid / (grid.width * grid.height) as f64;
-    let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
-    // Density by k, for δ = max_error_m · 2^k.
-    let mut by_k: Vec<Option<Density>> = vec![None; 32];
-    let mut density_k = |k: usize, delta_m: f64| *by_k[k.min(31)].get_or_insert_with(|| density(delta_m));
-    // Every distinct tree: its leaf width is the widest chunk after d splits.
-    let full = ChunkTree::plan(grid.width, grid.height, max_error_m, 1, 0);
-    let widths: Vec<u32> = (0..=full.depth()).map(|d| full.widest_cells(d).into_iter().max().unwrap_or(0)).collect();
-    let mut candidates: Vec<u32> = widths.iter().copied().filter(|&c| c >= 32).collect();
-    if candidates.is_empty() {
-        candidates.push(32);
+        };
+        self.by_k[k] = Some(d);
+        d
     }
-    let deepest = *candidates.last().expect("one candidate");
-    for &c in &candidates {
-        let fits = c <= DENSE_LEAF_CELLS
-            || c <= widest && {
-                let side = f64::from(c + 1);
-                density_k(0, max_error_m).densest * side * side <= MAX_VERTICES as f64 / 2.0
-            };
-        if !fits {
-            continue;
+
+    /// The leaf width, in cells, of the shallowest tree whose chunks hold at
+    /// most [`CHUNK_VERTICES`] vertices on average (leaves no narrower than
+    /// 32 cells). Fewer levels nest fewer constraints into the leaves: on
+    /// Fuji at 10 m, two levels instead of three take the leaves from 1.24
+    /// to 1.06 times the triangles of one unconstrained TIN. Leaves wider
+    /// than [`DENSE_LEAF_CELLS`] are chosen only up to `widest` cells and
+    /// where the densest window says they hold under half of 65 535
+    /// vertices (see [`build_into`]).
+    pub fn leaf_cells(&mut self, widest: u32) -> u32 {
+        let grid = self.grid;
+        let valid_share = self.valid / (grid.width * grid.height) as f64;
+        let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
+        // Every distinct tree: its leaf width is the widest chunk after d splits.
+        let full = ChunkTree::plan(grid.width, grid.height, self.max_error_m, 1, 0);
+        let widths: Vec<u32> =
+            (0..=full.depth()).map(|d| full.widest_cells(d).into_iter().max().unwrap_or(0)).collect();
+        let mut candidates: Vec<u32> = widths.iter().copied().filter(|&c| c >= 32).collect();
+        if candidates.is_empty() {
+            candidates.push(32);
         }
-        let tree = ChunkTree::plan(grid.width, grid.height, max_error_m, c, 0);
-        let levels = tree.delta_m.len();
-        let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
-        // A level: its interior at the interior density, and every chunk's
-        // four borders (each shared border written by both chunks) at the
-        // border density, scaled by the share of valid samples.
-        let vertices: f64 = (0..levels)
-            .map(|l| {
-                let d = density_k(levels - 1 - l, tree.delta_m[l]);
-                let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
-                d.interior * valid + d.border * perimeter * valid_share
-            })
-            .sum();
-        if vertices / chunks as f64 <= CHUNK_VERTICES {
-            return c;
+        let deepest = *candidates.last().expect("one candidate");
+        for &c in &candidates {
+            let fits = c <= DENSE_LEAF_CELLS
+                || c <= widest && {
+                    let side = f64::from(c + 1);
+                    self.density(0).densest * side * side <= MAX_VERTICES as f64 / 2.0
+                };
+            if !fits {
+                continue;
+            }
+            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, c, 0);
+            let levels = tree.delta_m.len();
+            let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+            // A level: its interior at the interior density, and every chunk's
+            // four borders (each shared border written by both chunks) at the
+            // border density, scaled by the share of valid samples.
+            let vertices: f64 = (0..levels)
+                .map(|l| {
+                    let d = self.density(levels - 1 - l);
+                    let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
+                    d.interior * self.valid + d.border * perimeter * valid_share
+                })
+                .sum();
+            if vertices / chunks as f64 <= CHUNK_VERTICES {
+                return c;
+            }
         }
+        deepest
     }
-    deepest
+
+    /// The refine levels to try first for leaves of `leaf_cells`: the fewest
+    /// under which no chunk wider than 65 535 samples is estimated at more
+    /// than [`SURELY_TOO_DENSE`] times 65 535 vertices. Such a chunk is
+    /// sure enough to fail that building it to find out (2.3 s for each of
+    /// California's two roots at 1 m) is skipped; a closer call is still
+    /// built and decides (see [`build_into`]).
+    pub fn refine_levels(&mut self, leaf_cells: u32) -> u32 {
+        let grid = self.grid;
+        for refine in 0..MAX_REFINE_LEVELS {
+            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, leaf_cells, refine);
+            let levels = tree.delta_m.len();
+            let too_dense: Vec<usize> = (0..levels)
+                .filter(|&l| {
+                    let big = |s: &Span| (s.1 - s.0 + 1) as usize;
+                    if tree.xs[l].iter().map(big).max().unwrap_or(0) * tree.zs[l].iter().map(big).max().unwrap_or(0)
+                        <= MAX_VERTICES
+                    {
+                        return false;
+                    }
+                    let d = self.density(levels - 1 - l);
+                    tree.xs[l].iter().any(|&xs| {
+                        tree.zs[l].iter().any(|&zs| {
+                            let valid = valid_in(grid, xs, zs) as f64;
+                            let share = valid / (big(&xs) * big(&zs)) as f64;
+                            let perimeter = 2.0 * f64::from(xs.1 - xs.0 + zs.1 - zs.0);
+                            d.interior * valid + d.border * perimeter * share > SURELY_TOO_DENSE * MAX_VERTICES as f64
+                        })
+                    })
+                })
+                .collect();
+            // The last level has the leaves' footprint and δ whatever the
+            // refine levels: more cannot help it, the build says so.
+            if too_dense.is_empty() || too_dense.contains(&(levels - 1)) {
+                return refine;
+            }
+        }
+        MAX_REFINE_LEVELS
+    }
 }
 
-/// What [`auto_leaf_cells`] measures on its windows at one δ.
+/// How far over 65 535 vertices a chunk's estimate must be before it is
+/// taken as failing without building it. The estimate has been 11 % over
+/// the built count (Fuji's root at 20 and 40 m) and far under it (74 % under
+/// at California's 256 m root: windows of 64 cells see little of a coarse
+/// level's shape), so a fifth over is a safe "surely".
+pub const SURELY_TOO_DENSE: f64 = 1.2;
+
+/// Refine levels a build may add before it gives up.
+const MAX_REFINE_LEVELS: u32 = 24;
+
+/// Valid samples in a footprint.
+fn valid_in(grid: &Grid, xs: Span, zs: Span) -> usize {
+    (zs.0 as usize..=zs.1 as usize)
+        .map(|i| {
+            let row = i * grid.width;
+            grid.heights[row + xs.0 as usize..=row + xs.1 as usize].iter().filter(|h| !h.is_nan()).count()
+        })
+        .sum()
+}
+
+/// What [`Estimate`] measures on its windows at one δ.
 #[derive(Clone, Copy, Default)]
 struct Density {
     /// Vertices off the window's border per valid sample.

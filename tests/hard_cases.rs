@@ -193,6 +193,23 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
     assert!(deepest.vertices * 100 >= 99 * deepest.chunks * 129 * 129, "{:#?}", b.report.levels);
 }
 
+/// A top chunk whose sample windows say it surely cannot fit 65 535 vertices
+/// (here: ±10 m of noise over 513² samples, 4 times what a chunk can hold, against 1 m) is not
+/// built to find out: the refine levels it needs come from the estimate,
+/// no attempt is discarded, and the result still verifies. The estimate
+/// never asks for more levels than needed (checked on every DEM of
+/// `../shared/dem` at 0.25, 1, 5 and 20 m: it was equal or short, never
+/// over), so a build that passes with fewer levels is not made deeper.
+#[test]
+fn a_top_chunk_surely_too_dense_is_not_built_to_find_out() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "noise.asc", 513, 513, |i, j| white_noise(i, j) / 100.0);
+    let b = survives(&dem, config(1.0, 128));
+    assert!(b.report.refine_estimated > 0, "the estimate saw the noise: {:#?}", b.report.levels);
+    assert_eq!(b.report.refine_levels, b.report.refine_estimated, "no attempt was built and discarded");
+    assert!(leaf(&b).max_error_m <= 1.0);
+}
+
 /// Chunks that fail (too dense for u16 indices) stop the others of their
 /// build early, and the build starts again with a refine level: whichever
 /// chunk fails first and whatever was cancelled, the output is the same bytes
@@ -210,6 +227,12 @@ fn restarted_builds_are_the_same_bytes_at_any_thread_count() {
             let out = tmp.path().join(format!("out{threads}"));
             let report = build(&with_config(&dem, &out, Config { threads, ..config(0.5, 80) })).unwrap();
             assert!(report.refine_levels > 0, "{threads} threads: the top chunks are too dense at first");
+            assert!(
+                report.refine_levels > report.refine_estimated,
+                "{threads} threads: an attempt failed and was restarted ({} estimated of {})",
+                report.refine_estimated,
+                report.refine_levels
+            );
             all_files(&out)
         })
         .into_iter()
