@@ -386,35 +386,41 @@ pub const DENSE_LEAF_CELLS: u32 = 250;
 /// A level of δ holds about (valid samples × vertices per sample at δ)
 /// vertices whatever its chunking, so a tree's chunk sizes follow from its
 /// plan and the density at each level's δ, measured with one greedy TIN on
-/// each of up to 4 × 4 windows of 64 × 64 cells spread over the grid. Each
-/// δ = max_error_m · 2^k is measured once, when first asked for.
+/// each of up to 4 × 4 windows of 64 × 64 cells spread over the grid (up to
+/// 8 × 8 for a close call, see [`Estimate::leaf_cells`]). Each δ =
+/// max_error_m · 2^k is measured once per window set, when first asked for.
 pub struct Estimate<'g> {
     grid: &'g Grid<'g>,
     max_error_m: f64,
-    windows: Vec<(Span, Span, usize)>,
-    by_k: Vec<Option<Density>>,
+    /// Up to 4 × 4 windows, then (for a close call) up to 8 × 8.
+    windows: [Vec<(Span, Span, usize)>; 2],
+    by_k: [Vec<Option<Density>>; 2],
     valid: f64,
 }
 
 impl<'g> Estimate<'g> {
     /// Chooses the windows; measures nothing yet.
     pub fn new(grid: &'g Grid<'g>, max_error_m: f64) -> Self {
-        let cells = 64.min(grid.width - 1).min(grid.height - 1);
-        let starts = |n: usize| {
-            let k = ((n - 1) / cells).clamp(1, 4);
-            (0..k).map(move |w| if k == 1 { 0 } else { w * (n - 1 - cells) / (k - 1) }).collect::<Vec<_>>()
-        };
-        let mut windows = Vec::new();
-        for &z in &starts(grid.height) {
-            for &x in &starts(grid.width) {
-                let valid = valid_in(grid, (x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32));
-                if valid > 0 {
-                    windows.push(((x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32), valid));
+        let windows = [4, 8].map(|most| {
+            let cells = 64.min(grid.width - 1).min(grid.height - 1);
+            let starts = |n: usize| {
+                let k = ((n - 1) / cells).clamp(1, most);
+                (0..k).map(move |w| if k == 1 { 0 } else { w * (n - 1 - cells) / (k - 1) }).collect::<Vec<_>>()
+            };
+            let mut windows = Vec::new();
+            for &z in &starts(grid.height) {
+                for &x in &starts(grid.width) {
+                    let (xs, zs) = ((x as u32, (x + cells) as u32), (z as u32, (z + cells) as u32));
+                    let valid = valid_in(grid, xs, zs);
+                    if valid > 0 {
+                        windows.push((xs, zs, valid));
+                    }
                 }
             }
-        }
+            windows
+        });
         let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
-        Estimate { grid, max_error_m, windows, by_k: vec![None; 32], valid }
+        Estimate { grid, max_error_m, windows, by_k: [vec![None; 32], vec![None; 32]], valid }
     }
 
     /// The density at δ = max_error_m · 2^k: interior vertices per valid
@@ -423,17 +429,21 @@ impl<'g> Estimate<'g> {
     /// chunk's is, and costs a 64-cell window far more per sample than a
     /// wide chunk: counting it per sample (as this did first) put Fuji's
     /// 2-level tree at 10 m at 9 200 vertices per chunk where the build
-    /// makes 7 700 (now 8 200; 3 levels at 5 m: 5 200 estimated, 5 100
-    /// built). The windows' TINs are independent: meshed in parallel,
+    /// makes 7 700 (now 8 200 on 4 × 4 windows and 7 100 on 8 × 8; 3 levels
+    /// at 5 m: 5 200 estimated, 5 100 built). The windows' TINs are independent: meshed in parallel,
     /// summed in order.
     fn density(&mut self, k: usize) -> Density {
+        self.density_on(k, 0)
+    }
+
+    /// [`Self::density`] on the first (`set` 0) or the denser (1) windows.
+    fn density_on(&mut self, k: usize, set: usize) -> Density {
         let k = k.min(31);
-        if let Some(d) = self.by_k[k] {
+        if let Some(d) = self.by_k[set][k] {
             return d;
         }
         let (grid, delta_m) = (self.grid, self.max_error_m * 2f64.powi(k as i32));
-        let measured: Vec<Option<(usize, usize, usize, usize)>> = self
-            .windows
+        let measured: Vec<Option<(usize, usize, usize, usize)>> = self.windows[set]
             .par_iter()
             .map(|&(xs, zs, valid)| {
                 let spec = ChunkSpec {
@@ -467,7 +477,7 @@ impl<'g> Estimate<'g> {
         } else {
             Density { interior: interior as f64 / samples as f64, border: border as f64 / edge_cells as f64, densest }
         };
-        self.by_k[k] = Some(d);
+        self.by_k[set][k] = Some(d);
         d
     }
 
@@ -475,7 +485,9 @@ impl<'g> Estimate<'g> {
     /// most [`CHUNK_VERTICES`] vertices on average (leaves no narrower than
     /// 32 cells). Fewer levels nest fewer constraints into the leaves: on
     /// Fuji at 10 m, two levels instead of three take the leaves from 1.24
-    /// to 1.06 times the triangles of one unconstrained TIN. Leaves wider
+    /// to 1.06 times the triangles of one unconstrained TIN. A tree whose
+    /// estimate is within [`CLOSE_CALL`] of the bound is measured again on
+    /// up to 8 × 8 windows, which decides. Leaves wider
     /// than [`DENSE_LEAF_CELLS`] are chosen only up to `widest` cells and
     /// where the densest window says they hold under half of 65 535
     /// vertices (see [`build_into`]).
@@ -507,14 +519,25 @@ impl<'g> Estimate<'g> {
             // A level: its interior at the interior density, and every chunk's
             // four borders (each shared border written by both chunks) at the
             // border density, scaled by the share of valid samples.
-            let vertices: f64 = (0..levels)
-                .map(|l| {
-                    let d = self.density(levels - 1 - l);
-                    let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
-                    d.interior * self.valid + d.border * perimeter * valid_share
-                })
-                .sum();
-            if vertices / chunks as f64 <= CHUNK_VERTICES {
+            let mut average = |set: usize| {
+                let vertices: f64 = (0..levels)
+                    .map(|l| {
+                        let d = self.density_on(levels - 1 - l, set);
+                        let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
+                        d.interior * self.valid + d.border * perimeter * valid_share
+                    })
+                    .sum();
+                vertices / chunks as f64
+            };
+            // 16 windows of 64² cells miss by up to 13 % (Fuji's root at
+            // 20 m: 11 300 estimated, 10 233 built, where 8 × 8 windows,
+            // the whole grid, say 9 600); a close call is measured again
+            // on up to 64 windows.
+            let mut estimate = average(0);
+            if (estimate / CHUNK_VERTICES - 1.0).abs() <= CLOSE_CALL {
+                estimate = average(1);
+            }
+            if estimate <= CHUNK_VERTICES {
                 return c;
             }
         }
@@ -567,6 +590,10 @@ impl<'g> Estimate<'g> {
 /// at California's 256 m root: windows of 64 cells see little of a coarse
 /// level's shape), so a fifth over is a safe "surely".
 pub const SURELY_TOO_DENSE: f64 = 1.2;
+
+/// How near [`CHUNK_VERTICES`] a tree's estimate must be to be measured
+/// again on more windows.
+const CLOSE_CALL: f64 = 0.15;
 
 /// Refine levels a build may add before it gives up.
 const MAX_REFINE_LEVELS: u32 = 24;
