@@ -25,7 +25,7 @@ use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
-use crate::quadtree::{ChunkKey, ChunkTree, Span};
+use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS, Span};
 use crate::texture::source::{generate, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureError, TextureExtras, TextureSource, Texturer};
 
@@ -397,6 +397,9 @@ pub struct Estimate<'g> {
     windows: [Vec<(Span, Span, usize)>; 2],
     by_k: [Vec<Option<Density>>; 2],
     valid: f64,
+    /// Valid samples of the footprints [`Estimate::refine_levels`] counted:
+    /// the top levels keep their footprints whatever the refine levels.
+    valid_by_footprint: Vec<((Span, Span), usize)>,
 }
 
 impl<'g> Estimate<'g> {
@@ -421,7 +424,14 @@ impl<'g> Estimate<'g> {
             windows
         });
         let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
-        Estimate { grid, max_error_m, windows, by_k: [vec![None; 32], vec![None; 32]], valid }
+        Estimate {
+            grid,
+            max_error_m,
+            windows,
+            by_k: [vec![None; 32], vec![None; 32]],
+            valid,
+            valid_by_footprint: Vec::new(),
+        }
     }
 
     /// The density at δ = max_error_m · 2^k: interior vertices per valid
@@ -431,8 +441,8 @@ impl<'g> Estimate<'g> {
     /// wide chunk: counting it per sample (as this did first) put Fuji's
     /// 2-level tree at 10 m at 9 200 vertices per chunk where the build
     /// makes 7 700 (now 8 200 on 4 × 4 windows and 7 100 on 8 × 8; 3 levels
-    /// at 5 m: 5 200 estimated, 5 100 built). The windows' TINs are independent: meshed in parallel,
-    /// summed in order.
+    /// at 5 m: 5 200 estimated, 5 100 built). The windows' TINs are
+    /// independent: meshed in parallel, summed in order.
     fn density(&mut self, k: usize) -> Density {
         self.density_on(k, 0)
     }
@@ -525,7 +535,7 @@ impl<'g> Estimate<'g> {
                     .map(|l| {
                         let d = self.density_on(levels - 1 - l, set);
                         let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
-                        d.interior * self.valid + d.border * perimeter * valid_share
+                        d.vertices(self.valid, perimeter, valid_share)
                     })
                     .sum();
                 vertices / chunks as f64
@@ -549,6 +559,16 @@ impl<'g> Estimate<'g> {
         deepest
     }
 
+    /// [`valid_in`], counted once per footprint.
+    fn valid_in_footprint(&mut self, xs: Span, zs: Span) -> usize {
+        if let Some(&(_, n)) = self.valid_by_footprint.iter().find(|(f, _)| *f == (xs, zs)) {
+            return n;
+        }
+        let n = valid_in(self.grid, xs, zs);
+        self.valid_by_footprint.push(((xs, zs), n));
+        n
+    }
+
     /// The refine levels to try first for leaves of `leaf_cells`: the fewest
     /// under which no chunk wider than 65 535 samples is estimated at more
     /// than [`SURELY_TOO_DENSE`] times 65 535 vertices. Such a chunk is
@@ -560,25 +580,32 @@ impl<'g> Estimate<'g> {
         for refine in 0..MAX_REFINE_LEVELS {
             let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, leaf_cells, refine);
             let levels = tree.delta_m.len();
-            let too_dense: Vec<usize> = (0..levels)
-                .filter(|&l| {
-                    let big = |s: &Span| (s.1 - s.0 + 1) as usize;
-                    if tree.xs[l].iter().map(big).max().unwrap_or(0) * tree.zs[l].iter().map(big).max().unwrap_or(0)
-                        <= MAX_VERTICES
-                    {
-                        return false;
-                    }
-                    let d = self.density(levels - 1 - l);
-                    tree.xs[l].iter().any(|&xs| {
-                        tree.zs[l].iter().any(|&zs| {
-                            let valid = valid_in(grid, xs, zs) as f64;
-                            let share = valid / (big(&xs) * big(&zs)) as f64;
-                            let perimeter = 2.0 * f64::from(xs.1 - xs.0 + zs.1 - zs.0);
-                            d.interior * valid + d.border * perimeter * share > SURELY_TOO_DENSE * MAX_VERTICES as f64
-                        })
+            let limit = SURELY_TOO_DENSE * MAX_VERTICES as f64;
+            let mut too_dense = Vec::new();
+            for l in 0..levels {
+                let big = |s: &Span| (s.1 - s.0 + 1) as usize;
+                if tree.xs[l].iter().map(big).max().unwrap_or(0) * tree.zs[l].iter().map(big).max().unwrap_or(0)
+                    <= MAX_VERTICES
+                {
+                    continue;
+                }
+                let d = self.density(levels - 1 - l);
+                let dense = tree.xs[l].iter().any(|&xs| {
+                    tree.zs[l].iter().any(|&zs| {
+                        let (samples, perimeter) =
+                            ((big(&xs) * big(&zs)) as f64, 2.0 * f64::from(xs.1 - xs.0 + zs.1 - zs.0));
+                        // Counting the valid samples (a pass over the
+                        // footprint) only where a full footprint could pass.
+                        d.vertices(samples, perimeter, 1.0) > limit && {
+                            let valid = self.valid_in_footprint(xs, zs) as f64;
+                            d.vertices(valid, perimeter, valid / samples) > limit
+                        }
                     })
-                })
-                .collect();
+                });
+                if dense {
+                    too_dense.push(l);
+                }
+            }
             // The last level has the leaves' footprint and δ whatever the
             // refine levels: more cannot help it, the build says so.
             if too_dense.is_empty() || too_dense.contains(&(levels - 1)) {
@@ -600,9 +627,6 @@ pub const SURELY_TOO_DENSE: f64 = 1.2;
 /// again on more windows.
 const CLOSE_CALL: f64 = 0.15;
 
-/// Refine levels a build may add before it gives up.
-const MAX_REFINE_LEVELS: u32 = 24;
-
 /// Valid samples in a footprint.
 fn valid_in(grid: &Grid, xs: Span, zs: Span) -> usize {
     (zs.0 as usize..=zs.1 as usize)
@@ -622,6 +646,15 @@ struct Density {
     border: f64,
     /// The densest window's vertices per valid sample.
     densest: f64,
+}
+
+impl Density {
+    /// Vertices of an area with `valid` valid samples and `perimeter` cells
+    /// of border (each chunk's four, a shared one counted by both chunks),
+    /// `share` of whose samples are valid.
+    fn vertices(&self, valid: f64, perimeter: f64, share: f64) -> f64 {
+        self.interior * valid + self.border * perimeter * share
+    }
 }
 
 struct Timers {

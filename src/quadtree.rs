@@ -33,6 +33,10 @@ pub struct ChunkKey {
     pub y: u32,
 }
 
+/// Most refine levels a plan takes (see [`ChunkTree::plan`]); a build that
+/// still has a chunk too dense gives up there.
+pub const MAX_REFINE_LEVELS: u32 = 24;
+
 /// Per-axis spans for every level, plus δ per level.
 #[derive(Clone, Debug)]
 pub struct ChunkTree {
@@ -70,7 +74,7 @@ impl ChunkTree {
             xs.push(nx);
             zs.push(nz);
         }
-        for _ in 0..refine_levels.min(24) {
+        for _ in 0..refine_levels.min(MAX_REFINE_LEVELS) {
             xs.push(xs.last().unwrap().clone());
             zs.push(zs.last().unwrap().clone());
         }
