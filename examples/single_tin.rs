@@ -10,7 +10,6 @@ use std::time::Instant;
 use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::void_fill;
 use terrachunk::mesh::decimate::{ChunkSpec, Grid, build_chunk};
-use terrachunk::quadtree::ChunkKey;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -20,15 +19,7 @@ fn main() {
     let filled = void_fill(&hf);
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let t = Instant::now();
-    let spec = ChunkSpec {
-        key: ChunkKey { level: 0, x: 0, y: 0 },
-        footprint: ((0, hf.width as u32 - 1), (0, hf.height as u32 - 1)),
-        delta_m: max_error,
-        parent: None,
-        max_vertices: usize::MAX,
-        dividing_lines: false,
-        cancel: None,
-    };
+    let spec = ChunkSpec::unconstrained(((0, hf.width as u32 - 1), (0, hf.height as u32 - 1)), max_error);
     let mesh = build_chunk(&grid, &spec).expect("meshes");
     let secs = t.elapsed().as_secs_f64();
     let tris = mesh.kept.iter().filter(|k| **k).count();

@@ -457,15 +457,7 @@ impl<'g> Estimate<'g> {
         let measured: Vec<Option<(usize, usize, usize, usize)>> = self.windows[set]
             .par_iter()
             .map(|&(xs, zs, valid)| {
-                let spec = ChunkSpec {
-                    key: ChunkKey { level: 0, x: 0, y: 0 },
-                    footprint: (xs, zs),
-                    delta_m,
-                    parent: None,
-                    max_vertices: usize::MAX,
-                    dividing_lines: false,
-                    cancel: None,
-                };
+                let spec = ChunkSpec::unconstrained((xs, zs), delta_m);
                 let mesh = build_chunk(grid, &spec).ok()?;
                 let on_border = |v: &&MeshVertex| {
                     v.x == f64::from(xs.0) || v.x == f64::from(xs.1) || v.z == f64::from(zs.0) || v.z == f64::from(zs.1)

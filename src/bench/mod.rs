@@ -36,7 +36,6 @@ use crate::dem::{self, DemError, LoadOptions};
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
 use crate::mesh::{ChunkMesh, MeshError};
-use crate::quadtree::ChunkKey;
 use crate::verify::VerifyError;
 use measure::ErrorStats;
 use table::Row;
@@ -495,15 +494,7 @@ pub struct SingleTin {
 pub fn single_tin(hf: &Heightfield, max_error_m: f64) -> Result<ChunkMesh, MeshError> {
     let filled = void_fill(hf);
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
-    let spec = ChunkSpec {
-        key: ChunkKey { level: 0, x: 0, y: 0 },
-        footprint: ((0, hf.width as u32 - 1), (0, hf.height as u32 - 1)),
-        delta_m: max_error_m,
-        parent: None,
-        max_vertices: usize::MAX,
-        dividing_lines: false,
-        cancel: None,
-    };
+    let spec = ChunkSpec::unconstrained(((0, hf.width as u32 - 1), (0, hf.height as u32 - 1)), max_error_m);
     build_chunk(&grid, &spec)
 }
 

@@ -143,6 +143,23 @@ pub struct ChunkSpec<'p> {
     pub cancel: Option<&'p AtomicBool>,
 }
 
+impl ChunkSpec<'_> {
+    /// One free greedy TIN over `footprint` at `delta_m`: no parent, no
+    /// dividing lines, no vertex limit (the single-TIN baseline, and the
+    /// sample windows the leaf width is estimated from).
+    pub fn unconstrained(footprint: (Span, Span), delta_m: f64) -> Self {
+        ChunkSpec {
+            key: ChunkKey { level: 0, x: 0, y: 0 },
+            footprint,
+            delta_m,
+            parent: None,
+            max_vertices: usize::MAX,
+            dividing_lines: false,
+            cancel: None,
+        }
+    }
+}
+
 /// Builds one chunk's TIN (see the module comment for the four steps).
 pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError> {
     let ((x0, x1), (z0, z1)) = spec.footprint;
