@@ -9,7 +9,9 @@
 //! are the surface's positions, morph deltas, normals, texture attributes
 //! and indices, everything of the skirt, and the JSON (with the GLB's
 //! headers). terrachunk stores surface and skirt in one view per stream and
-//! interleaves the vertex attributes, so each stream is cut out of its
+//! interleaves the vertex attributes (with `meshopt-v1` the skirt's tops
+//! are surface vertices: a primitive's own vertices are those its
+//! triangles use that no earlier primitive did), so each stream is cut out of its
 //! decoded view and, in a meshopt file, encoded again on its own with the
 //! codec version the file uses, at `--level` (default: terrachunk's, 2 for
 //! version 0 and 3 for version 1); the
@@ -146,18 +148,57 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
         });
     }
 
+    // Which vertices of a shared vertex set (meshopt-v1: the skirt's tops
+    // are surface vertices) were counted with an earlier primitive.
+    let mut counted: BTreeMap<usize, Vec<bool>> = BTreeMap::new();
+    let mut earlier: Vec<u32> = Vec::new();
     for prim in j["meshes"][0]["primitives"].as_array().ok_or("no primitives")? {
         let role = prim["extras"]["role"].as_str().unwrap_or("surface");
+        let name = |what: &str| if role == "surface" { format!("surface {what}") } else { "skirt (all)".to_string() };
+        let acc = &j["accessors"][num(&prim["indices"])];
+        let view = &views[num(&acc["bufferView"])];
+        let (offset, count) = (num(&acc["byteOffset"]), num(&acc["count"]));
+        let idx: Vec<u32> = view.bytes[offset..offset + 2 * count]
+            .chunks_exact(2)
+            .map(|b| u32::from(u16::from_le_bytes([b[0], b[1]])))
+            .collect();
+        // What this primitive's triangles add to the index stream after the
+        // primitives before it (the codec carries its state across them).
+        let bytes = match view.version {
+            None => 2 * count,
+            Some(_) => {
+                let encoded = |idx: &[u32]| -> Result<usize, String> {
+                    let vertices = idx.iter().max().map_or(0, |&m| m as usize + 1);
+                    Ok(meshopt::encode_index_buffer(idx, vertices).map_err(|e| format!("{e:?}"))?.len())
+                };
+                let before = if earlier.is_empty() { 0 } else { encoded(&earlier)? };
+                earlier.extend_from_slice(&idx);
+                encoded(&earlier)? - before
+            }
+        };
+        *sum.streams.entry(name("indices")).or_default() += bytes as u64;
+
+        // This primitive's own vertices: those its triangles use that no
+        // earlier primitive counted, in vertex order.
+        let position = num(&prim["attributes"]["POSITION"]);
+        let n = num(&j["accessors"][position]["count"]);
+        let taken = counted.entry(position).or_insert_with(|| vec![false; n]);
+        let mut used = vec![false; n];
+        for &i in &idx {
+            used[i as usize] = true;
+        }
+        let own: Vec<usize> = (0..n).filter(|&v| used[v] && !taken[v]).collect();
+        for &v in &own {
+            taken[v] = true;
+        }
+        if role == "surface" {
+            sum.surface_vertices += own.len() as u64;
+        }
         let mut attributes: Vec<(String, usize)> =
             prim["attributes"].as_object().ok_or("no attributes")?.iter().map(|(k, a)| (k.clone(), num(a))).collect();
         if let Some(t) = prim["targets"][0]["POSITION"].as_u64() {
             attributes.push(("morph delta".into(), t as usize));
         }
-        let positions = &j["accessors"][num(&prim["attributes"]["POSITION"])];
-        if role == "surface" {
-            sum.surface_vertices += positions["count"].as_u64().unwrap_or(0);
-        }
-        let name = |what: &str| if role == "surface" { format!("surface {what}") } else { "skirt (all)".to_string() };
         for (what, a) in attributes {
             let acc = &j["accessors"][a];
             let view = &views[num(&acc["bufferView"])];
@@ -172,9 +213,9 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
             };
             let size = size.div_ceil(4) * 4;
             let stride = if view.stride == 0 { size } else { view.stride };
-            let (offset, count) = (num(&acc["byteOffset"]), num(&acc["count"]));
+            let offset = num(&acc["byteOffset"]);
             let column: Vec<u8> =
-                (0..count).flat_map(|i| view.bytes[offset + i * stride..][..size].iter().copied()).collect();
+                own.iter().flat_map(|&i| view.bytes[offset + i * stride..][..size].iter().copied()).collect();
             let bytes = match view.version {
                 None => column.len(),
                 Some(version) => {
@@ -185,19 +226,6 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
             let what = if what == "POSITION" { "positions".to_string() } else { what.to_lowercase() };
             *sum.streams.entry(name(&what)).or_default() += bytes as u64;
         }
-        let acc = &j["accessors"][num(&prim["indices"])];
-        let view = &views[num(&acc["bufferView"])];
-        let (offset, count) = (num(&acc["byteOffset"]), num(&acc["count"]));
-        let raw = &view.bytes[offset..offset + 2 * count];
-        let bytes = match view.version {
-            None => raw.len(),
-            Some(_) => {
-                let idx: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
-                let vertices = idx.iter().max().map_or(0, |&m| m as usize + 1);
-                meshopt::encode_index_buffer(&idx, vertices).map_err(|e| format!("{e:?}"))?.len()
-            }
-        };
-        *sum.streams.entry(name("indices")).or_default() += bytes as u64;
     }
     Ok(())
 }

@@ -102,9 +102,20 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     // With a normal map, the map carries the shading and the vertices fix
     // its tangent frame to the map's axes (see `texture`).
     let normal_map = texture.and_then(|t| t.normal.as_ref());
-    let prims: Vec<PrimData> = parts
+    // meshopt-v1 writes one vertex set for both primitives: the skirt's tops
+    // are the surface's own vertices (see `share_skirt`).
+    let shared = ctx.meshopt == Some(Meshopt::Khr) && frame.is_some() && parts.len() == 2;
+    let (sets, triangles): (Vec<Part>, Vec<(usize, Vec<u32>)>) = if shared {
+        let (set, skirt) = share_skirt(&parts[0].1, &parts[1].1);
+        let surface = set.indices.clone();
+        (vec![set], vec![(0, surface), (0, skirt)])
+    } else {
+        let triangles = parts.iter().enumerate().map(|(k, (_, p))| (k, p.indices.clone())).collect();
+        (parts.iter().map(|(_, p)| p.clone()).collect(), triangles)
+    };
+    let prims: Vec<PrimData> = sets
         .iter()
-        .map(|(_, p)| {
+        .map(|p| {
             let n = p.positions.len();
             let uv = |img: &TileImage| -> Vec<[f32; 2]> {
                 p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
@@ -121,7 +132,10 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
     let mut sink = Sink::default();
     let written = match &frame {
         None => prims.iter().map(|p| float_attributes(&mut sink, p, origin)).collect(),
-        Some(f) => compress::write_quantized(&mut sink, f, &prims, ctx.normals),
+        Some(f) => {
+            let triangles: Vec<(usize, &[u32])> = triangles.iter().map(|(k, t)| (*k, t.as_slice())).collect();
+            compress::write_quantized(&mut sink, f, &prims, &triangles, ctx.normals)
+        }
     };
     let prims: Vec<Value> = parts
         .iter()
@@ -260,6 +274,45 @@ fn float_attributes(sink: &mut Sink, prim: &PrimData, origin: [f64; 3]) -> (Valu
         attributes["TEXCOORD_1"] = push_vec2(bin, views, accessors, uv).into();
     }
     (attributes, idx, dlt)
+}
+
+/// `meshopt-v1`'s one vertex set for surface and skirt: the skirt's top
+/// vertices are surface vertices (the same position, normal and morph
+/// delta, as `mesh::skirt` copies them), so the set is the surface's
+/// vertices then the skirt's bottoms, in the order the skirt's triangles
+/// first use them (the order the index codec expects of new vertices).
+/// Returns the set, whose `indices` are the surface's, and the skirt's
+/// triangles in it. Only where no surface vertex matches does a top become
+/// a vertex of its own (not seen: the tops are copies).
+fn share_skirt(surface: &Part, skirt: &Part) -> (Part, Vec<u32>) {
+    let key = |p: &[f64; 3]| p.map(f64::to_bits);
+    let at: std::collections::HashMap<[u64; 3], usize> =
+        surface.positions.iter().enumerate().map(|(i, p)| (key(p), i)).collect();
+    let mut set = surface.clone();
+    let mut remap: Vec<Option<u32>> = skirt
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            at.get(&key(p))
+                .filter(|&&i| surface.normals[i] == skirt.normals[k] && surface.morph_dy[i] == skirt.morph_dy[k])
+                .map(|&i| i as u32)
+        })
+        .collect();
+    let indices = skirt
+        .indices
+        .iter()
+        .map(|&v| {
+            let v = v as usize;
+            *remap[v].get_or_insert_with(|| {
+                set.positions.push(skirt.positions[v]);
+                set.normals.push(skirt.normals[v]);
+                set.morph_dy.push(skirt.morph_dy[v]);
+                (set.positions.len() - 1) as u32
+            })
+        })
+        .collect();
+    (set, indices)
 }
 
 /// Vertex-cache then vertex-fetch order (meshoptimizer); same triangles.
