@@ -901,11 +901,12 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
     }
     let mut straddling = 0;
     for t in &c.surface.triangles {
-        let [a, b, d] = t.map(|i| cv[i as usize]);
+        let child = t.map(|i| cv[i as usize]);
+        let [a, b, d] = child;
         let (cx, cz) = ((a.x + b.x + d.x) / 3.0, (a.z + b.z + d.z) / 3.0);
         if let Some((pt, _)) = loc.locate(cx, cz, round_grid) {
-            let [pa, pb, pd] = p.surface.triangles[pt as usize].map(|i| pv[i as usize]);
-            if [a, b, d].iter().any(|v| barycentric(&pa, &pb, &pd, v.x, v.z).0 > 1e-4 + 2.0 * round_grid) {
+            let parent = p.surface.triangles[pt as usize].map(|i| pv[i as usize]);
+            if straddles(child, parent, 1e-4 + 2.0 * round_grid) {
                 straddling += 1;
             }
         }
@@ -923,6 +924,28 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
         problems.push("morph target has nonzero x/z deltas".into());
     }
     gap
+}
+
+/// Whether a child triangle reaches more than `tol` grid units outside the
+/// parent triangle that holds its centroid, i.e. straddles one of its
+/// edges. A sliver whose height over its longest side is within `tol` has
+/// no inside to straddle with: it is a segment as far as the rounding can
+/// tell, and which side of a parent edge its centroid reads on is noise.
+/// Such slivers come from cut points: one on the line through two collinear
+/// parent edges makes a zero-area child triangle with their shared vertex,
+/// whose f64 coordinates leave it a hair of area (Sierra N36W119 at 1 m,
+/// `quantize`). Its corners are checked on the parent surface like every
+/// vertex, and it covers no sample the triangles beside it do not.
+fn straddles(child: [MeshVertex; 3], parent: [MeshVertex; 3], tol: f64) -> bool {
+    let [a, b, d] = child;
+    let twice_area = ((b.x - a.x) * (d.z - a.z) - (d.x - a.x) * (b.z - a.z)).abs();
+    let side = |p: &MeshVertex, q: &MeshVertex| (p.x - q.x).hypot(p.z - q.z);
+    let longest = side(&a, &b).max(side(&b, &d)).max(side(&d, &a));
+    if twice_area <= tol * longest {
+        return false;
+    }
+    let [pa, pb, pd] = parent;
+    child.iter().any(|v| barycentric(&pa, &pb, &pd, v.x, v.z).0 > tol)
 }
 
 /// The f32 rounding, metres, of positions written chunk-local in two chunks,
@@ -1015,4 +1038,34 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
         .zip(&cb)
         .find(|(p, q)| (p[along] - q[along]).abs() > tol_along || (p[1] - q[1]).abs() > slack)
         .map(|(p, q)| format!("border vertex {p:?} vs {q:?}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, z: f64) -> MeshVertex {
+        MeshVertex { x, z, h: 0.0, ph: 0.0 }
+    }
+
+    /// Sierra N36W119 at 1 m, `quantize`: chunk 4/12/0 holds a zero-area
+    /// triangle along two collinear edges of its parent 3/6/0, through their
+    /// shared vertex (929, 48); as read back, its centroid falls in the
+    /// parent's sliver beside them and its far corner is 9.5 cells outside
+    /// it. `verify` failed the build for it.
+    #[test]
+    fn a_sliver_along_collinear_parent_edges_does_not_straddle() {
+        let child = [v(937.0, 42.888_671_875), v(929.0, 48.0), v(900.0, 66.529_296_875)];
+        let parent = [v(927.0, 49.0), v(900.0, 66.531_25), v(929.0, 48.0)];
+        // Half the child's step (1/512 cell) plus half the parent's (1/256).
+        let tol = 1e-4 + 2.0 * (1.0 / 1024.0 + 1.0 / 512.0);
+        assert!(barycentric(&parent[0], &parent[1], &parent[2], 937.0, 42.888_671_875).0 > 9.0);
+        assert!(!straddles(child, parent, tol));
+        // A real triangle across the same parent edge still straddles it.
+        let across = [v(937.0, 42.0), v(929.0, 48.0), v(915.0, 50.0)];
+        assert!(straddles(across, parent, tol));
+        // And one inside the parent triangle does not.
+        let inside = [v(928.0, 48.6), v(927.5, 48.9), v(910.0, 60.1)];
+        assert!(!straddles(inside, parent, tol));
+    }
 }
