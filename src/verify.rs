@@ -880,6 +880,11 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
         // rounding of where it was read; the one that explains its target
         // best decides (on a crease, the triangle it was read into may be
         // the neighbour of the one it is on).
+        // The gap reported is the smallest over those triangles: the one
+        // with the most allowance may be a steep sliver whose plane, read a
+        // rounding away, says nothing of how far the target is (Sierra
+        // N36W119 with `quantize`: 103 m "gaps" beside clustered cut points,
+        // where the vertex sat exactly on the parent surface).
         let best = loc
             .near(v.x, v.z, round_grid)
             .into_iter()
@@ -887,7 +892,7 @@ fn check_morph(c: &ChunkFile, p: &ChunkFile, spacing: [f64; 2], problems: &mut V
                 let g = (v.h + dy - h).abs();
                 (g - allowed(t), g)
             })
-            .min_by(|a, b| a.0.total_cmp(&b.0));
+            .reduce(|a, b| (a.0.min(b.0), a.1.min(b.1)));
         match best {
             Some((excess, g)) => {
                 gap = gap.max(g);
