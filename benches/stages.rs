@@ -50,6 +50,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         max_vertices: MAX_VERTICES,
         dividing_lines: true,
         cancel: None,
+        cut_share: terrachunk::mesh::decimate::CUT_SHARE,
     };
     build_chunk(&grid(hf), &spec).expect("the fixture meshes")
 }

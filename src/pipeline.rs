@@ -19,7 +19,7 @@ use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
+use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, MAX_VERTICES, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
@@ -898,31 +898,51 @@ impl Run<'_> {
         let delta = tree.delta_m[level as usize];
         // Quantized output meshes to δ less its rounding (output::compress).
         let budget = |d: f64| self.ctx.quantization.map_or(d, |q| q.mesh_delta(d));
-        let t = Instant::now();
-        let spec = ChunkSpec {
-            key,
-            footprint: tree.footprint(key),
-            delta_m: budget(delta),
-            parent,
-            max_vertices: MAX_VERTICES,
-            dividing_lines: tree.splits(level),
-            cancel: Some(&self.failed),
+        // A quantized chunk is measured again as it will be written (cut
+        // points move sideways to the grid) and, where that misses δ,
+        // meshed again with a wider margin next to cut points.
+        let mut shares = CUT_SHARES.iter();
+        let (mesh, chunk) = loop {
+            let share = *shares.next().expect("the last share is 0");
+            let t = Instant::now();
+            let spec = ChunkSpec {
+                key,
+                footprint: tree.footprint(key),
+                delta_m: budget(delta),
+                parent,
+                max_vertices: MAX_VERTICES,
+                dividing_lines: tree.splits(level),
+                cancel: Some(&self.failed),
+                cut_share: share,
+            };
+            let mesh = build_chunk(grid, &spec)?;
+            if mesh.max_error_m > spec.delta_m {
+                return Err(BuildError::MissedDelta {
+                    level: key.level,
+                    x: key.x,
+                    y: key.y,
+                    error_m: mesh.max_error_m,
+                    delta_m: spec.delta_m,
+                });
+            }
+            Timers::add(&timers.mesh, t);
+            let t = Instant::now();
+            let margin = tree.delta_m[(level as usize).saturating_sub(2)];
+            let chunk = Chunk { delta_m: delta, ..assemble(grid, self.hf.spacing_m, &mesh, margin) };
+            Timers::add(&timers.skirt_morph, t);
+            let Some(q) = self.ctx.quantization else { break (mesh, chunk) };
+            let written = q.cut_error(&chunk, grid)?;
+            if written <= delta {
+                break (mesh, chunk);
+            }
+            if share == 0.0 {
+                return Err(BuildError::Quantize(QuantizeError::CutPoints {
+                    chunk: format!("{}/{}/{}", key.level, key.x, key.y),
+                    error_m: written,
+                    delta_m: delta,
+                }));
+            }
         };
-        let mesh = build_chunk(grid, &spec)?;
-        if mesh.max_error_m > spec.delta_m {
-            return Err(BuildError::MissedDelta {
-                level: key.level,
-                x: key.x,
-                y: key.y,
-                error_m: mesh.max_error_m,
-                delta_m: spec.delta_m,
-            });
-        }
-        Timers::add(&timers.mesh, t);
-        let t = Instant::now();
-        let margin = tree.delta_m[(level as usize).saturating_sub(2)];
-        let chunk = Chunk { delta_m: delta, ..assemble(grid, self.hf.spacing_m, &mesh, margin) };
-        Timers::add(&timers.skirt_morph, t);
         let t = Instant::now();
         let texture = self.texturer.map(|tx| tx.tile(key)).transpose()?;
         Timers::add(&timers.texture, t);
@@ -955,6 +975,12 @@ impl Run<'_> {
         Ok((mesh, built))
     }
 }
+
+/// The shares of δ a quantized chunk is meshed to next to cut points, tried
+/// in turn until the chunk as written (cut points rounded sideways to the
+/// grid) is within δ ([`Quantization::cut_error`]). At 0 every sample
+/// under a cut-point triangle is on the surface before rounding.
+const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
 
 /// What a level's summary needs from one written chunk.
 struct LevelFigures {

@@ -141,7 +141,14 @@ pub struct ChunkSpec<'p> {
     /// Stop early with [`MeshError::Cancelled`] once this is set (another
     /// chunk failed, so this build's work is lost anyway).
     pub cancel: Option<&'p AtomicBool>,
+    /// The share of δ a triangle or line interval with a cut-point corner is
+    /// meshed to ([`Targets`]; [`CUT_SHARE`] unless the quantized output
+    /// needs a wider margin there, see `Quantization::cut_error`).
+    pub cut_share: f64,
 }
+
+/// The share of δ next to cut points by default ([`Targets`]).
+pub const CUT_SHARE: f64 = 0.98;
 
 impl ChunkSpec<'_> {
     /// One free greedy TIN over `footprint` at `delta_m`: no parent, no
@@ -156,6 +163,7 @@ impl ChunkSpec<'_> {
             max_vertices: usize::MAX,
             dividing_lines: false,
             cancel: None,
+            cut_share: CUT_SHARE,
         }
     }
 }
@@ -166,7 +174,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let window = Window::new(grid, spec.footprint);
     let grid = &window;
     let (relief, magnitude) = footprint_relief(grid, spec.footprint);
-    let target = Targets::new(spec.delta_m, relief);
+    let target = Targets::with_cut_share(spec.delta_m, relief, spec.cut_share);
     let nested = spec.parent.is_some();
     let (mx, mz) = match spec.dividing_lines {
         true => (midpoint((x0, x1)), midpoint((z0, z1))),
@@ -179,12 +187,17 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // Steps 2 and 3b: borders, then dividing lines, refined in 1-D. Their
     // target takes its f32 margin from the whole grid's relief, not the
     // chunk's: the chunks on either side of a line must decide it alike.
-    let line_target = Targets::new(spec.delta_m, grid.grid.relief_m.max(relief));
+    // The borders keep the default share next to cut points (a neighbour
+    // meshed at another share must draw them alike); the dividing lines,
+    // inside the chunk, take this chunk's.
+    let line_relief = grid.grid.relief_m.max(relief);
+    let border_target = Targets::new(spec.delta_m, line_relief);
     for (vertical, coord, span) in
         [(false, z0, (x0, x1)), (false, z1, (x0, x1)), (true, x0, (z0, z1)), (true, x1, (z0, z1))]
     {
-        refine_line(&mut tin, grid, vertical, coord, span, line_target, nested);
+        refine_line(&mut tin, grid, vertical, coord, span, border_target, nested);
     }
+    let line_target = Targets::with_cut_share(spec.delta_m, line_relief, spec.cut_share);
     if let Some(mx) = mx {
         refine_line(&mut tin, grid, true, mx, (z0, z1), line_target, nested);
     }
@@ -266,7 +279,11 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
 ///   crosses a parent edge, off the sample grid): that corner's height
 ///   rounds (by at most 2⁻²⁴ of the relief in f32; 4ε·relief is eight times
 ///   that) and its position moves along the line (f32, or half a quantize
-///   step), which on steep ground tilts the triangle: 2 % of δ covers that.
+///   step), which on steep ground tilts the triangle: 2 % of δ
+///   ([`CUT_SHARE`]) covers that in f32. Half a quantize step can move it
+///   further (on Provence's Verdon gorge at 1 m, to 8.058 m in a chunk of
+///   δ 8 m), so a quantized chunk is measured again as it will be written
+///   and meshed with a smaller share where it misses (`ChunkSpec::cut_share`).
 ///
 /// Until issue 5 the 2 % applied everywhere: on integer heights many samples
 /// lie within 2 % of δ, and meshing to 0.98·δ cost some 10 % more triangles
@@ -282,8 +299,13 @@ pub struct Targets {
 impl Targets {
     /// The targets for δ over ground of this relief.
     pub fn new(delta_m: f64, relief_m: f64) -> Self {
+        Self::with_cut_share(delta_m, relief_m, CUT_SHARE)
+    }
+
+    /// The same with `share` of δ next to cut points.
+    pub fn with_cut_share(delta_m: f64, relief_m: f64, share: f64) -> Self {
         let rounding = relief_m * 4.0 * f64::from(f32::EPSILON);
-        Targets { exact: delta_m, cut: delta_m * 0.98 - rounding }
+        Targets { exact: delta_m, cut: (delta_m * share - rounding).max(0.0) }
     }
 
     /// The target over a triangle, or a line interval, with these corners.

@@ -32,8 +32,12 @@
 //! still within δ(L) of every sample. Cut points also move sideways by up to
 //! half a horizontal step (1/512 of a cell in a 250-cell chunk); the
 //! mesher's own margin next to them (a triangle with a cut-point corner is
-//! meshed to 0.98·δ, [`crate::mesh::decimate::Targets`]) covers that, and
-//! `verify` re-measures the dequantized files against δ with no allowance.
+//! meshed to 0.98·δ, [`crate::mesh::decimate::Targets`]) covers that on
+//! most ground. Where it does not (the steepest: Provence's Verdon gorge at
+//! 1 m), [`Quantization::cut_error`] finds it in the chunk as it will be
+//! written and the pipeline meshes the chunk again with a wider margin
+//! there. `verify` re-measures the dequantized files against δ with no
+//! allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
 //! the vertex's rounded height, in whole steps (scaled by the node like
@@ -106,6 +110,9 @@ use serde_json::{Value, json};
 
 use crate::chunk::Chunk;
 use crate::heightfield::Heightfield;
+use crate::mesh::MeshVertex;
+use crate::mesh::decimate::Grid;
+use crate::morph::barycentric;
 use crate::output::gltf::PrimData;
 use crate::quadtree::ChunkTree;
 
@@ -135,6 +142,20 @@ pub enum QuantizeError {
         level: u32,
         /// Widest footprint, cells.
         cells: u32,
+    },
+    /// Even with every sample under a cut-point triangle on the surface,
+    /// rounding the cut points sideways to the grid moves the surface past δ.
+    #[error(
+        "compress: chunk {chunk}: rounding its cut points to the u16 grid moves the surface {error_m} m from a \
+         sample, more than δ = {delta_m} m; raise max_error_m or use --compress none"
+    )]
+    CutPoints {
+        /// `L/x/y`.
+        chunk: String,
+        /// The error as written, metres.
+        error_m: f64,
+        /// δ(L), metres.
+        delta_m: f64,
     },
     /// A chunk's vertices do not fit the planned grid (a terrachunk bug).
     #[error("compress: chunk {chunk}: a {axis} coordinate falls outside 0..=65535 steps (please report it)")]
@@ -190,6 +211,54 @@ impl Quantization {
     /// grid, it is still within `delta_m` of every sample: δ − step/2.
     pub fn mesh_delta(&self, delta_m: f64) -> f64 {
         delta_m - self.step_y_m / 2.0
+    }
+
+    /// The largest |surface − sample| over the samples under `chunk`'s
+    /// triangles that have a cut-point corner, with every corner where the
+    /// written file puts it: heights on the grid (which `mesh_delta` allows
+    /// for) and a cut point, off the sample grid, moved along its dividing
+    /// line to the nearest step. Half a step (1/512 of a cell in a 250-cell
+    /// chunk) on a steep triangle can tilt it by more than the mesher's
+    /// margin next to cut points (Provence at 1 m, Verdon gorge: 8.058 m in
+    /// a chunk of δ 8 m), which is what this finds. Triangles without a cut
+    /// corner only move vertically, within `mesh_delta`'s allowance.
+    pub fn cut_error(&self, chunk: &Chunk, grid: &Grid) -> Result<f64, QuantizeError> {
+        let frame = self.frame(chunk)?;
+        let s = self.spacing_m;
+        let whole = |c: f64| c == c.round();
+        let surface = &chunk.surface;
+        let cut: Vec<bool> = surface.positions.iter().map(|p| !whole(p[0] / s[0]) || !whole(p[2] / s[1])).collect();
+        let written: Vec<MeshVertex> = surface
+            .positions
+            .iter()
+            .map(|p| {
+                let q = frame.position(p);
+                let w = [0, 1, 2].map(|a| frame.translation[a] + frame.scale[a] * f64::from(q[a]));
+                MeshVertex { x: w[0] / s[0], z: w[2] / s[1], h: w[1], ph: w[1] }
+            })
+            .collect();
+        let mut worst: f64 = 0.0;
+        for t in surface.indices.chunks_exact(3) {
+            if !t.iter().any(|&i| cut[i as usize]) {
+                continue;
+            }
+            let [a, b, d] = [t[0], t[1], t[2]].map(|i| written[i as usize]);
+            let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
+            let (xlo, xhi) = (a.x.min(b.x).min(d.x), a.x.max(b.x).max(d.x));
+            let rows = (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((grid.height - 1) as f64) as usize);
+            for i in rows {
+                let cols = (xlo.ceil().max(0.0) as usize)..=(xhi.floor().min((grid.width - 1) as f64) as usize);
+                for j in cols {
+                    let (outside, h) = barycentric(&a, &b, &d, j as f64, i as f64);
+                    let sample = grid.heights[i * grid.width + j];
+                    if outside > 0.0 || sample.is_nan() {
+                        continue;
+                    }
+                    worst = worst.max((h - f64::from(sample)).abs());
+                }
+            }
+        }
+        Ok(worst)
     }
 
     /// The grid of one chunk: where its integers start and their step.
