@@ -585,6 +585,21 @@ fn print_summary(r: &Report, out: &std::path::Path) {
             }
         );
     }
+    if r.remeshed_for_cut_points > 0 {
+        println!(
+            "{} chunk(s) meshed again with a wider margin next to cut points, so that rounding them to the u16 grid keeps δ",
+            r.remeshed_for_cut_points
+        );
+    }
+    if !r.over_delta_as_written.is_empty() {
+        let list: Vec<String> = r.over_delta_as_written.iter().map(|(k, e)| format!("{k} ({e:.3} m)")).collect();
+        eprintln!(
+            "warning: {} chunk(s) miss δ as written even so (cut points rounded to the u16 grid on steep ground; \
+             `verify` reports them, --compress none avoids it): {}",
+            list.len(),
+            list.join(", ")
+        );
+    }
     if let Some(b) = r.peak_rss_bytes {
         println!("peak memory: {:.1} MB", b as f64 / 1e6);
     }

@@ -210,6 +210,13 @@ pub struct Report {
     pub discarded_s: f64,
     /// Widest deepest-level chunk, in cells (set, or chosen from the data).
     pub leaf_cells: u32,
+    /// Quantized output: chunks meshed again with a wider margin next to
+    /// cut points, so that rounding those sideways to the grid keeps δ.
+    pub remeshed_for_cut_points: usize,
+    /// Quantized output: chunks that miss δ as written even with no error
+    /// left next to their cut points, `L/x/y` and the error as written, m
+    /// (each written at the margin that came closest; `verify` reports them).
+    pub over_delta_as_written: Vec<(String, f64)>,
 }
 
 /// Wall time per pipeline stage, seconds.
@@ -741,6 +748,11 @@ fn build_levels(
         }
         lr.max_error_m = lr.max_error_m.max(c.max_error_m);
         lr.leaves += usize::from(c.leaf);
+        report.remeshed_for_cut_points += usize::from(c.remeshed);
+        if let Some(e) = c.over_delta_m {
+            let k = c.record.key;
+            report.over_delta_as_written.push((format!("{}/{}/{}", k.level, k.x, k.y), e));
+        }
     }
     report.bytes = run.bytes.load(Ordering::Relaxed);
     let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
@@ -769,6 +781,10 @@ struct BuiltChunk {
     record: TileRecord,
     figures: LevelFigures,
     max_error_m: f64,
+    /// Meshed again for its cut points (quantized output), and, where even
+    /// that missed δ, its error as written.
+    remeshed: bool,
+    over_delta_m: Option<f64>,
     /// No children: already within max_error, or at the deepest level.
     leaf: bool,
 }
@@ -902,8 +918,13 @@ impl Run<'_> {
         // points move sideways to the grid) and, where that misses δ,
         // meshed again with a wider margin next to cut points.
         let mut shares = CUT_SHARES.iter();
-        let (mesh, chunk) = loop {
-            let share = *shares.next().expect("the last share is 0");
+        // The attempt whose written error came closest, while none is within δ.
+        let mut closest: Option<(f64, ChunkMesh, Chunk)> = None;
+        let (mesh, chunk, remeshed, over_delta_m) = loop {
+            let Some(&share) = shares.next() else {
+                let (e, mesh, chunk) = closest.expect("one attempt at least");
+                break (mesh, chunk, true, Some(e));
+            };
             let t = Instant::now();
             let spec = ChunkSpec {
                 key,
@@ -930,17 +951,13 @@ impl Run<'_> {
             let margin = tree.delta_m[(level as usize).saturating_sub(2)];
             let chunk = Chunk { delta_m: delta, ..assemble(grid, self.hf.spacing_m, &mesh, margin) };
             Timers::add(&timers.skirt_morph, t);
-            let Some(q) = self.ctx.quantization else { break (mesh, chunk) };
+            let Some(q) = self.ctx.quantization else { break (mesh, chunk, false, None) };
             let written = q.cut_error(&chunk, grid)?;
             if written <= delta {
-                break (mesh, chunk);
+                break (mesh, chunk, share != CUT_SHARE, None);
             }
-            if share == 0.0 {
-                return Err(BuildError::Quantize(QuantizeError::CutPoints {
-                    chunk: format!("{}/{}/{}", key.level, key.x, key.y),
-                    error_m: written,
-                    delta_m: delta,
-                }));
+            if closest.as_ref().is_none_or(|c| written < c.0) {
+                closest = Some((written, mesh, chunk));
             }
         };
         let t = Instant::now();
@@ -971,7 +988,14 @@ impl Run<'_> {
         let stops = !self.opts.config.complete_tree && mesh.meets(budget(self.opts.config.max_error_m));
         let leaf = stops || tree.children(key).is_empty();
         let max_error_m = mesh.max_error_m;
-        let built = BuiltChunk { record: TileRecord { key, min, max, delta_m: delta }, figures, max_error_m, leaf };
+        let built = BuiltChunk {
+            record: TileRecord { key, min, max, delta_m: delta },
+            figures,
+            max_error_m,
+            remeshed,
+            over_delta_m,
+            leaf,
+        };
         Ok((mesh, built))
     }
 }
@@ -979,7 +1003,9 @@ impl Run<'_> {
 /// The shares of δ a quantized chunk is meshed to next to cut points, tried
 /// in turn until the chunk as written (cut points rounded sideways to the
 /// grid) is within δ ([`Quantization::cut_error`]). At 0 every sample
-/// under a cut-point triangle is on the surface before rounding.
+/// under a cut-point triangle is on the surface before rounding; a chunk
+/// still over δ then is written as the attempt that came closest and
+/// reported (`Report::over_delta_as_written`).
 const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
 
 /// What a level's summary needs from one written chunk.

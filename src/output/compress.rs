@@ -143,20 +143,6 @@ pub enum QuantizeError {
         /// Widest footprint, cells.
         cells: u32,
     },
-    /// Even with every sample under a cut-point triangle on the surface,
-    /// rounding the cut points sideways to the grid moves the surface past δ.
-    #[error(
-        "compress: chunk {chunk}: rounding its cut points to the u16 grid moves the surface {error_m} m from a \
-         sample, more than δ = {delta_m} m; raise max_error_m or use --compress none"
-    )]
-    CutPoints {
-        /// `L/x/y`.
-        chunk: String,
-        /// The error as written, metres.
-        error_m: f64,
-        /// δ(L), metres.
-        delta_m: f64,
-    },
     /// A chunk's vertices do not fit the planned grid (a terrachunk bug).
     #[error("compress: chunk {chunk}: a {axis} coordinate falls outside 0..=65535 steps (please report it)")]
     Range {
@@ -237,27 +223,51 @@ impl Quantization {
                 MeshVertex { x: w[0] / s[0], z: w[2] / s[1], h: w[1], ph: w[1] }
             })
             .collect();
-        let mut worst: f64 = 0.0;
-        for t in surface.indices.chunks_exact(3) {
-            if !t.iter().any(|&i| cut[i as usize]) {
-                continue;
+        // Each sample's error is its best fit among the written triangles
+        // over it, as `verify` takes it: where a cut point moves across a
+        // sliver, triangles overlap, and the sliver's steep plane must not
+        // count against a sample its neighbour fits. The samples are those
+        // under a cut-point triangle; the triangles that can be over them
+        // after the move are those sharing a corner with one.
+        let triangles: Vec<[usize; 3]> =
+            surface.indices.chunks_exact(3).map(|t| [t[0] as usize, t[1] as usize, t[2] as usize]).collect();
+        let is_cut = |t: &[usize; 3]| t.iter().any(|&i| cut[i]);
+        let mut near = vec![false; written.len()];
+        for t in triangles.iter().filter(|t| is_cut(t)) {
+            for &i in t {
+                near[i] = true;
             }
-            let [a, b, d] = [t[0], t[1], t[2]].map(|i| written[i as usize]);
+        }
+        let mut best: BTreeMap<(usize, usize), f64> = BTreeMap::new();
+        let mut visit = |t: &[usize; 3], add: bool| {
+            let [a, b, d] = t.map(|i| written[i]);
             let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
             let (xlo, xhi) = (a.x.min(b.x).min(d.x), a.x.max(b.x).max(d.x));
-            let rows = (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((grid.height - 1) as f64) as usize);
-            for i in rows {
-                let cols = (xlo.ceil().max(0.0) as usize)..=(xhi.floor().min((grid.width - 1) as f64) as usize);
-                for j in cols {
+            for i in (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((grid.height - 1) as f64) as usize) {
+                for j in (xlo.ceil().max(0.0) as usize)..=(xhi.floor().min((grid.width - 1) as f64) as usize) {
                     let (outside, h) = barycentric(&a, &b, &d, j as f64, i as f64);
                     let sample = grid.heights[i * grid.width + j];
                     if outside > 0.0 || sample.is_nan() {
                         continue;
                     }
-                    worst = worst.max((h - f64::from(sample)).abs());
+                    let e = (h - f64::from(sample)).abs();
+                    match best.get_mut(&(i, j)) {
+                        Some(b) => *b = b.min(e),
+                        None if add => {
+                            best.insert((i, j), e);
+                        }
+                        None => {}
+                    }
                 }
             }
+        };
+        for t in triangles.iter().filter(|t| is_cut(t)) {
+            visit(t, true);
         }
+        for t in triangles.iter().filter(|t| !is_cut(t) && t.iter().any(|&i| near[i])) {
+            visit(t, false);
+        }
+        let worst = best.values().copied().fold(0.0, f64::max);
         Ok(worst)
     }
 
