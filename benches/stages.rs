@@ -51,6 +51,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         dividing_lines: true,
         cancel: None,
         cut_share: terrachunk::mesh::decimate::CUT_SHARE,
+        cut_lattice: None,
     };
     build_chunk(&grid(hf), &spec).expect("the fixture meshes")
 }

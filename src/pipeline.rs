@@ -935,6 +935,7 @@ impl Run<'_> {
                 dividing_lines: tree.splits(level),
                 cancel: Some(&self.failed),
                 cut_share: share,
+                cut_lattice: self.ctx.quantization.as_ref().map(|q| q.shift[level as usize]),
             };
             let mesh = build_chunk(grid, &spec)?;
             if mesh.max_error_m > spec.delta_m {

@@ -32,7 +32,7 @@ use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 use robust::Coord;
 
 use super::tin::{Position, Tin, V};
-use super::{ChunkMesh, MeshError, MeshVertex};
+use super::{ChunkMesh, MeshError, MeshVertex, chain_ties};
 use crate::morph::SurfaceLocator;
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
@@ -145,6 +145,20 @@ pub struct ChunkSpec<'p> {
     /// meshed to ([`Targets`]; [`CUT_SHARE`] unless the quantized output
     /// needs a wider margin there, see `Quantization::cut_error`).
     pub cut_share: f64,
+    /// Quantized output: the level's horizontal grid is 2^-k cells, and a
+    /// cut point this chunk makes is placed on it (along its dividing line),
+    /// where the file holds it exactly, unless that would turn a piece over
+    /// (`cut_along_line`). `None`: f32 output, cut points where the lines
+    /// cross the parent's edges.
+    pub cut_lattice: Option<u32>,
+}
+
+impl ChunkSpec<'_> {
+    /// Steps per cell of the grid the file writes positions on exactly
+    /// (1: only the samples, as f32 output is taken).
+    fn lattice(&self) -> f64 {
+        self.cut_lattice.map_or(1.0, |k| f64::from(1u32 << k.min(30)))
+    }
 }
 
 /// The share of δ next to cut points by default ([`Targets`]).
@@ -164,6 +178,7 @@ impl ChunkSpec<'_> {
             dividing_lines: false,
             cancel: None,
             cut_share: CUT_SHARE,
+            cut_lattice: None,
         }
     }
 }
@@ -174,7 +189,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let window = Window::new(grid, spec.footprint);
     let grid = &window;
     let (relief, magnitude) = footprint_relief(grid, spec.footprint);
-    let target = Targets::with_cut_share(spec.delta_m, relief, spec.cut_share);
+    let target = Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice());
     let nested = spec.parent.is_some();
     let (mx, mz) = match spec.dividing_lines {
         true => (midpoint((x0, x1)), midpoint((z0, z1))),
@@ -191,13 +206,13 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // meshed at another share must draw them alike); the dividing lines,
     // inside the chunk, take this chunk's.
     let line_relief = grid.grid.relief_m.max(relief);
-    let border_target = Targets::new(spec.delta_m, line_relief);
+    let border_target = Targets::new(spec.delta_m, line_relief).on_lattice(spec.lattice());
     for (vertical, coord, span) in
         [(false, z0, (x0, x1)), (false, z1, (x0, x1)), (true, x0, (z0, z1)), (true, x1, (z0, z1))]
     {
         refine_line(&mut tin, grid, vertical, coord, span, border_target, nested);
     }
-    let line_target = Targets::with_cut_share(spec.delta_m, line_relief, spec.cut_share);
+    let line_target = Targets::with_cut_share(spec.delta_m, line_relief, spec.cut_share).on_lattice(spec.lattice());
     if let Some(mx) = mx {
         refine_line(&mut tin, grid, true, mx, (z0, z1), line_target, nested);
     }
@@ -221,7 +236,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
                 if tin.version(t) == 0
                     && s.worst.is_none_or(|(_, i, j)| !lines.row_is_line(i) && !lines.col_is_line(j)) =>
             {
-                queue.record(t, 0, s, is_cut(&tin.corners(t)));
+                queue.record(t, 0, s, target.rounds(&tin.corners(t)));
             }
             _ => queue.push(&tin, &lines, t),
         }
@@ -290,10 +305,15 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
 /// than a TIN to δ.
 #[derive(Clone, Copy, Debug)]
 pub struct Targets {
-    /// Where every corner is a sample.
+    /// Where every corner is written exactly.
     pub exact: f64,
-    /// Next to a cut point.
+    /// Next to a cut point the file rounds.
     pub cut: f64,
+    /// Steps per cell of the grid the file holds exactly: 1 (the samples)
+    /// for f32 output, 2^k for quantized output, whose cut points are
+    /// placed on that grid ([`ChunkSpec::cut_lattice`]) and so count as
+    /// exact corners.
+    pub lattice: f64,
 }
 
 impl Targets {
@@ -305,13 +325,44 @@ impl Targets {
     /// The same with `share` of δ next to cut points.
     pub fn with_cut_share(delta_m: f64, relief_m: f64, share: f64) -> Self {
         let rounding = relief_m * 4.0 * f64::from(f32::EPSILON);
-        Targets { exact: delta_m, cut: (delta_m * share - rounding).max(0.0) }
+        Targets { exact: delta_m, cut: (delta_m * share - rounding).max(0.0), lattice: 1.0 }
+    }
+
+    /// The same for a file that holds positions on `lattice` steps per cell.
+    pub fn on_lattice(self, lattice: f64) -> Self {
+        Targets { lattice, ..self }
     }
 
     /// The target over a triangle, or a line interval, with these corners.
     fn over(&self, cut: bool) -> f64 {
         if cut { self.cut } else { self.exact }
     }
+
+    /// Whether a grid coordinate is off the grid the file holds exactly.
+    #[inline]
+    fn off(&self, c: f64) -> bool {
+        off_lattice(c, self.lattice)
+    }
+
+    /// Whether any of these corners is (a cut point the file rounds).
+    fn rounds(&self, corners: &[V]) -> bool {
+        corners.iter().any(|v| self.off(v.x) || self.off(v.z))
+    }
+}
+
+/// Whether `c` (any finite coordinate) is a whole number.
+fn whole_f(c: f64) -> bool {
+    c == c.round()
+}
+
+/// Whether grid coordinate `c` is off the grid of `lattice` steps per cell.
+#[inline]
+fn off_lattice(c: f64, lattice: f64) -> bool {
+    if lattice == 1.0 {
+        return !whole(c);
+    }
+    let y = c * lattice;
+    (y as i64) as f64 != y
 }
 
 /// Whether a corner is off the sample grid (a cut point).
@@ -406,27 +457,100 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
         }
     };
     let nested = spec.parent.is_some();
-    if let Some(mx) = mx {
-        cut_along_line(&mut soup, grid, true, mx, nested);
-    }
-    if let Some(mz) = mz {
-        cut_along_line(&mut soup, grid, false, mz, nested);
+    for (vertical, line) in [(true, mx), (false, mz)] {
+        if let Some(coord) = line {
+            cut_along_line(&mut soup, grid, Line { vertical, coord }, nested, spec.lattice());
+        }
     }
     (Tin::from_soup(soup.pts, &soup.tris, &soup.fixed), soup.origin)
 }
 
-/// Cuts every triangle the line `x = coord` (`vertical`) or `z = coord`
-/// crosses, at points on the crossed edges, so that the line becomes a chain
-/// of fixed edges. A cut point's morph target is the parent surface's height
-/// there; its own height is the line's profile (the sample's, where a
-/// crossing falls on a sample). A crossing shared by two triangles is
-/// computed once.
-fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, nested: bool) {
+/// A dividing line: `x = coord` (`vertical`) or `z = coord`.
+#[derive(Clone, Copy)]
+struct Line {
+    vertical: bool,
+    coord: u32,
+}
+
+/// Cuts every triangle `line` crosses, at points on the crossed edges, so
+/// that the line becomes a chain of fixed edges. A cut point's morph target
+/// is the parent surface's height there; its own height is the line's
+/// profile (the sample's, where a crossing falls on a sample). A crossing
+/// shared by two triangles is computed once.
+///
+/// With `lattice` > 1 (quantized output) each crossing then moves along the
+/// line to the nearest of `lattice` steps per cell, where the file holds it
+/// exactly, so the mesher measures the surface the file will draw. Rounding
+/// it only at write time moved it by up to half a step after the mesher had
+/// judged the triangles around it: on steep ground, next to a sliver of the
+/// parent, that tilted them far past δ (California at 1 m: 151 chunks over
+/// δ as written, up to 10 m at δ 1 m). The morph target stays the parent's
+/// height at the exact crossing, so the pieces' morph planes are the parent
+/// triangle's to within the slope times half a step, as `verify` allows.
+/// Crossings closer together than a step (a fan of parent edges from a
+/// vertex just off the line) land on one point as separate vertices with
+/// flat pieces between them, as the file would draw them anyway; a crossing
+/// whose move would turn a piece over tries the other neighbouring step,
+/// then stays where it is and keeps the mesher's margin.
+fn cut_along_line(soup: &mut Soup, grid: &Window, line: Line, nested: bool, lattice: f64) {
+    let base = soup.pts.len();
+    // Per crossing (edge key), how many of its lattice points folded a piece:
+    // the nearest first, then the other neighbour, then none (it stays).
+    let mut tried: HashMap<(u32, u32), u8> = HashMap::new();
+    loop {
+        soup.pts.truncate(base);
+        let (tris, fixed, origin, moved) = cut_pieces(soup, grid, line, nested, lattice, &tried);
+        let pos = |v: u32| {
+            let v = &soup.pts[v as usize];
+            Coord { x: v.x, y: v.z }
+        };
+        // Crossings closer together than a step land on one point: the
+        // pieces between them are flat, which the file cannot avoid and the
+        // mesh carries (each crossing keeps its own morph target, so no
+        // piece's morph is wrong; the TIN looks past flat triangles). Only a
+        // piece turned over sends one of its crossings on, the one tried
+        // least.
+        let mut folded: Vec<(u32, u32)> = tris
+            .iter()
+            .filter(|t| t.iter().any(|v| moved.contains_key(v)))
+            .filter(|t| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) < 0.0)
+            .filter_map(|t| {
+                t.iter().filter_map(|v| moved.get(v)).copied().min_by_key(|k| (tried.get(k).copied().unwrap_or(0), *k))
+            })
+            .collect();
+        if folded.is_empty() {
+            soup.tris = tris;
+            soup.fixed = fixed;
+            soup.origin = origin;
+            return;
+        }
+        folded.sort_unstable();
+        folded.dedup();
+        for k in folded {
+            *tried.entry(k).or_insert(0) += 1;
+        }
+    }
+}
+
+/// The pieces of [`cut_along_line`], each crossing (edge key) on the
+/// nearest lattice point, or the other neighbour after `tried` 1 fold, or
+/// left exact after 2; and the crossings moved onto the lattice (vertex →
+/// edge key).
+#[allow(clippy::type_complexity)]
+fn cut_pieces(
+    soup: &mut Soup,
+    grid: &Window,
+    Line { vertical, coord }: Line,
+    nested: bool,
+    lattice: f64,
+    tried: &HashMap<(u32, u32), u8>,
+) -> (Vec<[u32; 3]>, Vec<[bool; 3]>, Vec<u32>, HashMap<u32, (u32, u32)>) {
     let c = f64::from(coord);
     let across = |v: &V| if vertical { v.x } else { v.z };
     let along = |v: &V| if vertical { v.z } else { v.x };
     let side = |v: &V| across(v).total_cmp(&c) as i8;
     let mut cuts: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut moved: HashMap<u32, (u32, u32)> = HashMap::new();
     let mut cut = |pts: &mut Vec<V>, a: u32, b: u32| -> u32 {
         let key = (a.min(b), a.max(b));
         *cuts.entry(key).or_insert_with(|| {
@@ -438,6 +562,20 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
                 let (j, i) = if vertical { (coord, t as u32) } else { (t as u32, coord) };
                 grid.vertex_height(i as usize, j as usize)
             };
+            let mut on_lattice = false;
+            let attempt = tried.get(&key).copied().unwrap_or(0);
+            if (t - t.round()).abs() >= 1e-6 && lattice > 1.0 {
+                // The nearest grid point, then the other neighbour; never a
+                // sample's (a vertex may be there already: the border's
+                // midpoint, forced where the line meets it).
+                let (nearest, y) = ((t * lattice).round(), t * lattice);
+                let other = if y > nearest { nearest + 1.0 } else { nearest - 1.0 };
+                let mut candidates = [nearest, other].into_iter().map(|n| n / lattice).filter(|t| !whole_f(*t));
+                if let Some(r) = candidates.nth(usize::from(attempt)) {
+                    t = r;
+                    on_lattice = true;
+                }
+            }
             // A crossing that falls on a sample takes the sample itself (its
             // fill over nodata), so a border crossing (always on a sample) is
             // the same vertex the neighbour across that border makes. Between
@@ -456,7 +594,11 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
             };
             let (x, z) = if vertical { (c, t) } else { (t, c) };
             pts.push(V { x, z, h, ph: if nested { ph } else { h } });
-            (pts.len() - 1) as u32
+            let v = (pts.len() - 1) as u32;
+            if on_lattice {
+                moved.insert(v, key);
+            }
+            v
         })
     };
     let mut tris = Vec::with_capacity(soup.tris.len() + soup.tris.len() / 8);
@@ -502,9 +644,7 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, vertical: bool, coord: u32, ne
             origin.push(o);
         }
     }
-    soup.tris = tris;
-    soup.fixed = fixed;
-    soup.origin = origin;
+    (tris, fixed, origin, moved)
 }
 
 /// Inserts interior sample (i, j), queued from triangle `t`. A sample within
@@ -588,11 +728,12 @@ fn refine_line(tin: &mut Tin, grid: &Window, vertical: bool, coord: u32, span: S
         })
         .collect();
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    chain_ties(&mut pts, |a, b| tin.find_edge(a, b).is_some());
     let sample = |t: u32| if vertical { (coord, t) } else { (t, coord) };
     let mut stack: Vec<((f64, u32), (f64, u32))> = pts.windows(2).map(|w| (w[0], w[1])).collect();
     while let Some((a, b)) = stack.pop() {
         let (ha, hb) = (tin.pts[a.1 as usize].h, tin.pts[b.1 as usize].h);
-        let target = target.over(!whole(a.0) || !whole(b.0));
+        let target = target.over(target.off(a.0) || target.off(b.0));
         let first = (a.0 + 1e-9).ceil() as i64;
         let last = (b.0 - 1e-9).floor() as i64;
         let mut worst: Option<(f64, u32, f64)> = None;
@@ -838,7 +979,8 @@ impl Queue<'_> {
                 worst = Some((err, i, j));
             }
         });
-        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, is_cut(&tri));
+        let rounds = self.target.rounds(&tri);
+        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, rounds);
     }
 
     /// Records what triangle `t` (as it is now) holds, and queues its worst
@@ -969,6 +1111,7 @@ fn finish(
     let mut max_err: f64 = 0.0;
     let mut max_err_cut: f64 = 0.0;
     let mut parent_locator = None;
+    let lattice = spec.lattice();
     let mut seeds = Vec::with_capacity(n);
     for t in 0..n as u32 {
         let tri = tin.corners(t);
@@ -977,6 +1120,7 @@ fn finish(
         // vertex (of the neighbour), which is exact and must not count. Only
         // a scan that holds is handed to the children.
         let cut = is_cut(&tri);
+        let rounds = tri.iter().any(|v| off_lattice(v.x, lattice) || off_lattice(v.z, lattice));
         let any = match scans.get(t as usize) {
             Some(s) if s.version == tin.version(t) && !cut => {
                 max_err = max_err.max(s.found.max_err);
@@ -996,7 +1140,7 @@ fn finish(
                         return;
                     }
                     let on_line = lines.row_is_line(i) || lines.col_is_line(j);
-                    let class = if cut && !on_line { &mut max_err_cut } else { &mut max_err };
+                    let class = if rounds && !on_line { &mut max_err_cut } else { &mut max_err };
                     *class = class.max(e);
                 })
             }
@@ -1042,5 +1186,79 @@ fn finish(
         max_error_near_cuts_m: max_err_cut,
         relief_m,
         scans: seeds,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fan of parent edges around a vertex a thousandth of a cell from the
+    /// dividing line crosses it at points closer together than the quantize
+    /// grid, which the file cannot hold apart. Each crossing moves onto the
+    /// grid, those on one point stay separate vertices (each its own morph
+    /// target) with flat pieces between them, and no piece turns over.
+    #[test]
+    fn crowded_crossings_move_onto_the_lattice_without_folding_a_piece() {
+        let (w, h) = (21, 11);
+        let heights: Vec<f32> = (0..w * h).map(|k| ((k % w) * 7 + (k / w) * 3) as f32).collect();
+        let grid = Grid::new(w, h, &heights, None);
+        let window = Window::new(&grid, ((0, 20), (0, 10)));
+        let centre = V { x: 10.001, z: 5.0, h: 50.0, ph: 50.0 };
+        let mut pts = vec![centre];
+        let n = 16;
+        for k in 0..n {
+            let a = std::f64::consts::TAU * f64::from(k) / f64::from(n) + 0.1;
+            pts.push(V { x: 10.001 + 4.0 * a.cos(), z: 5.0 + 4.0 * a.sin(), h: 40.0, ph: 40.0 });
+        }
+        let tris: Vec<[u32; 3]> = (0..n).map(|k| [0, 1 + k, 1 + (k + 1) % n]).collect();
+        let mut soup = Soup { fixed: vec![[true; 3]; tris.len()], origin: vec![u32::MAX; tris.len()], pts, tris };
+        let lattice = 256.0;
+        let before = soup.pts.len();
+        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, true, lattice);
+        let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
+        let area = |t: &[u32; 3]| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) / 2.0;
+        for t in &soup.tris {
+            assert!(area(t) >= 0.0, "piece {t:?} turned over");
+        }
+        // All counter-clockwise and the fan's area (less what the two rim
+        // crossings' moves take, under 1e-3 here): the pieces tile it
+        // without overlap.
+        let rim: f64 = (0..n).map(|k| area(&[0, 1 + k, 1 + (k + 1) % n])).sum();
+        let total: f64 = soup.tris.iter().map(area).sum();
+        assert!((total - rim).abs() < 1e-3 * rim, "pieces cover {total}, the fan {rim}");
+        let crossings = &soup.pts[before..];
+        // Eight spokes reach across the line, seven of them within two grid
+        // steps, and two rim edges cross it far away.
+        assert_eq!(crossings.len(), 10);
+        assert!(crossings.iter().all(|v| v.x == 10.0 && !off_lattice(v.z, lattice)), "on the line and the grid");
+        let mut at: Vec<f64> = crossings.iter().map(|v| v.z).collect();
+        at.sort_by(f64::total_cmp);
+        at.dedup();
+        assert!(at.len() <= 6, "seven crowded crossings share three grid points: {at:?}");
+        let flat = soup.tris.iter().filter(|t| area(t) == 0.0).count();
+        assert!(flat > 0, "the crossings on one point leave flat pieces between them");
+    }
+
+    /// California at 1 m panicked ("a line is a chain of edges"): crossings
+    /// within half a step of the point where the dividing line meets the
+    /// border rounded onto that sample, where the border's vertex already
+    /// was, and the border line went through seven vertices at one point.
+    /// A crossing never lands on a sample's point.
+    #[test]
+    fn a_crossing_next_to_a_sample_does_not_land_on_it() {
+        let heights = vec![0.0f32; 21 * 11];
+        let grid = Grid::new(21, 11, &heights, None);
+        let window = Window::new(&grid, ((0, 20), (0, 10)));
+        let v = |x: f64, z: f64| V { x, z, h: 0.0, ph: 0.0 };
+        // The line x = 10 passes through corner P and crosses A–B at z = 4.999,
+        // whose nearest point on a 1/256 grid is the sample (10, 5) = P.
+        let pts = vec![v(9.0, 4.998), v(11.0, 5.0), v(10.0, 5.0)];
+        let mut soup = Soup { pts, tris: vec![[0, 1, 2]], fixed: vec![[true; 3]], origin: vec![0] };
+        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, true, 256.0);
+        let x = soup.pts[3];
+        assert_eq!((x.x, x.z * 256.0), (10.0, 1279.0), "the other neighbour, off the sample");
+        let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
+        assert!(soup.tris.iter().all(|t| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) > 0.0));
     }
 }

@@ -62,6 +62,25 @@ impl ChunkMesh {
     }
 }
 
+/// Orders a line's vertices, sorted by position along it, so that each is
+/// joined to the next where `joined` says they can be: vertices at one point
+/// (cut points closer together than the quantize grid, placed on it) come
+/// in the order of the chain of edges through them, not of their indices.
+pub fn chain_ties(on: &mut [(f64, u32)], joined: impl Fn(u32, u32) -> bool) {
+    for k in 1..on.len() {
+        if joined(on[k - 1].1, on[k].1) {
+            continue;
+        }
+        // Another vertex at this point, or at the last one, that is joined.
+        let at = [on[k - 1].0, on[k].0];
+        if let Some(j) =
+            (k + 1..on.len()).take_while(|&j| at.contains(&on[j].0)).find(|&j| joined(on[k - 1].1, on[j].1))
+        {
+            on.swap(k, j);
+        }
+    }
+}
+
 /// Unit normal of the DEM at grid point (x, z), from central differences of
 /// the nearest sample (one-sided at edges and next to nodata).
 pub fn dem_normal(grid: &decimate::Grid, spacing_m: [f64; 2], x: f64, z: f64) -> [f32; 3] {

@@ -58,6 +58,7 @@ pub fn build_skirt(
             })
             .collect();
         on.sort_by(|a, b| a.0.total_cmp(&b.0));
+        super::chain_ties(&mut on, |a, b| edge_set.binary_search(&(a.min(b), a.max(b))).is_ok());
         if on.len() < 2 {
             continue;
         }

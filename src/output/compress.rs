@@ -9,10 +9,14 @@
 //! chunk of a level and aligned to the world, so that two chunks round a
 //! shared vertex alike and their borders stay identical:
 //! - horizontally, the step is the sample spacing / 2^k(L), with k(L) the
-//!   largest that fits the level's widest footprint in 65 535 steps: every
-//!   DEM sample is exactly on the grid, and only the cut points (where a
-//!   dividing line crosses a parent edge, the one kind of vertex off the
-//!   sample grid) round, by at most half a step;
+//!   largest that fits the level's widest footprint in 65 535 steps, and at
+//!   most 8 ([`MAX_SHIFT`]): every DEM sample is exactly on the grid, and
+//!   only the cut points (where a dividing line crosses a parent edge, the
+//!   one kind of vertex off the sample grid) are placed on it by the mesher.
+//!   Finer than 1/256 of a cell (chunks under 128 cells wide) bought nothing
+//!   but a sample's x and z one more bit above the byte boundary: capped,
+//!   Fuji's `meshopt-v1` positions take 2.50 bytes per vertex instead of
+//!   2.61 (7 would make them 2.89: the grid no longer ends on a byte);
 //! - vertically, one step for the whole tileset: a power of two ≤
 //!   `max_error_m / 16`, doubled while the tallest chunk (the whole relief
 //!   plus skirts) would need more than 65 535 steps; a DEM whose relief needs
@@ -29,15 +33,23 @@
 //! **The δ budget.** Rounding a vertex's height moves the surface at any
 //! point by at most step/2, so each level is meshed to δ(L) − step/2
 //! ([`Quantization::mesh_delta`]) and the written, dequantized chunk is
-//! still within δ(L) of every sample. Cut points also move sideways by up to
-//! half a horizontal step (1/512 of a cell in a 250-cell chunk); the
-//! mesher's own margin next to them (a triangle with a cut-point corner is
-//! meshed to 0.98·δ, [`crate::mesh::decimate::Targets`]) covers that on
-//! most ground. Where it does not (the steepest: Provence's Verdon gorge at
-//! 1 m), [`Quantization::cut_error`] finds it in the chunk as it will be
-//! written and the pipeline meshes the chunk again with a wider margin
-//! there. `verify` re-measures the dequantized files against δ with no
-//! allowance.
+//! still within δ(L) of every sample. Cut points, the one kind of vertex
+//! off the sample grid, are placed on the level's grid by the mesher itself
+//! ([`crate::mesh::decimate::CutLattice`]): moved along their dividing line
+//! to the nearest step, where the file holds them exactly, so the surface
+//! the mesher measures is the one written. Crossings closer together than
+//! a step land on one point as separate vertices, each with its own morph
+//! target, and the pieces between them are flat; one whose move would turn
+//! a piece over tries the other neighbouring step, and failing that stays
+//! exact and rounds only here. Rounding every
+//! cut point only here, after meshing, tilted steep triangles past δ
+//! (Provence at 1 m: 8.058 m in a chunk of δ 8 m; California at 1 m: 151
+//! chunks, up to 10 m at δ 1 m, where fans of parent edges cross a line
+//! closer together than a step and rounding folded the pieces between
+//! them). [`Quantization::cut_error`] still measures each chunk as it will
+//! be written, and the pipeline meshes it again with a wider margin next to
+//! cut points where that misses δ. `verify` re-measures the dequantized
+//! files against δ with no allowance.
 //!
 //! **Morph targets** are the parent's height rounded to the same grid minus
 //! the vertex's rounded height, in whole steps (scaled by the node like
@@ -119,6 +131,9 @@ use crate::quadtree::ChunkTree;
 /// The largest u16.
 const U16_STEPS: f64 = 65_535.0;
 
+/// The finest horizontal step, 2^-MAX_SHIFT cells (see the module comment).
+const MAX_SHIFT: u32 = 8;
+
 /// Why vertex data cannot be quantized.
 #[derive(Debug, thiserror::Error)]
 pub enum QuantizeError {
@@ -188,7 +203,7 @@ impl Quantization {
             if f64::from(cells) > U16_STEPS {
                 return Err(QuantizeError::TooWide { level, cells });
             }
-            shift.push((U16_STEPS / f64::from(cells)).log2().floor().min(20.0) as u32);
+            shift.push((U16_STEPS / f64::from(cells)).log2().floor().min(f64::from(MAX_SHIFT)) as u32);
         }
         Ok(Quantization { step_y_m: step, shift, spacing_m: hf.spacing_m })
     }
