@@ -1032,6 +1032,11 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
                 start = k;
             }
         }
+        // Vertices at one point are one point of the border: quantized cut
+        // points closer together than the grid share it, and where a hole
+        // leaves the flat piece between them unwritten on one side, that
+        // side draws one of them (Seamount at 1 m, `quantize`).
+        v.dedup();
         v
     };
     let (ca, cb) = (common(va), common(vb));
