@@ -507,13 +507,22 @@ fn cut_along_line(soup: &mut Soup, grid: &Window, line: Line, nested: bool, latt
         // Crossings closer together than a step land on one point: the
         // pieces between them are flat, which the file cannot avoid and the
         // mesh carries (each crossing keeps its own morph target, so no
-        // piece's morph is wrong; the TIN looks past flat triangles). Only a
-        // piece turned over sends one of its crossings on, the one tried
-        // least.
+        // piece's morph is wrong; the TIN looks past flat triangles). A
+        // piece turned over, or flattened onto a line, sends one of its
+        // crossings on, the one tried least.
+        // Flat is allowed only where two corners are one point; three
+        // distinct corners in a line make a wall with no area under it, the
+        // surface two-valued along it (California at 1 m: a child's morph
+        // targets read three heights there, one 2.4 m off every parent plane).
+        let turned = |t: &[u32; 3]| {
+            let o = robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2]));
+            let same = |a: u32, b: u32| pos(a).x == pos(b).x && pos(a).y == pos(b).y;
+            o < 0.0 || (o == 0.0 && !same(t[0], t[1]) && !same(t[1], t[2]) && !same(t[2], t[0]))
+        };
         let mut folded: Vec<(u32, u32)> = tris
             .iter()
             .filter(|t| t.iter().any(|v| moved.contains_key(v)))
-            .filter(|t| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) < 0.0)
+            .filter(|t| turned(t))
             .filter_map(|t| {
                 t.iter().filter_map(|v| moved.get(v)).copied().min_by_key(|k| (tried.get(k).copied().unwrap_or(0), *k))
             })
