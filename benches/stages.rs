@@ -52,6 +52,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         cancel: None,
         cut_share: terrachunk::mesh::decimate::CUT_SHARE,
         cut_lattice: None,
+        height_step: None,
     };
     build_chunk(&grid(hf), &spec).expect("the fixture meshes")
 }

@@ -912,8 +912,6 @@ impl Run<'_> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
         let delta = tree.delta_m[level as usize];
-        // Quantized output meshes to δ less its rounding (output::compress).
-        let budget = |d: f64| self.ctx.quantization.map_or(d, |q| q.mesh_delta(d));
         // A quantized chunk is measured again as it will be written (cut
         // points move sideways to the grid) and, where that misses δ,
         // meshed again with a wider margin next to cut points.
@@ -929,13 +927,16 @@ impl Run<'_> {
             let spec = ChunkSpec {
                 key,
                 footprint: tree.footprint(key),
-                delta_m: budget(delta),
+                delta_m: delta,
                 parent,
                 max_vertices: MAX_VERTICES,
                 dividing_lines: tree.splits(level),
                 cancel: Some(&self.failed),
                 cut_share: share,
                 cut_lattice: self.ctx.quantization.as_ref().map(|q| q.shift[level as usize]),
+                // Quantized output: each triangle is meshed to δ less what
+                // its corners' heights round by (output::compress).
+                height_step: self.ctx.quantization.as_ref().map(|q| q.step_y_m),
             };
             let mesh = build_chunk(grid, &spec)?;
             if mesh.max_error_m > spec.delta_m {
@@ -994,7 +995,7 @@ impl Run<'_> {
                 bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
             }),
         };
-        let stops = !self.opts.config.complete_tree && mesh.meets(budget(self.opts.config.max_error_m));
+        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
         let leaf = stops || tree.children(key).is_empty();
         let max_error_m = mesh.max_error_m;
         let built = BuiltChunk {

@@ -33,7 +33,7 @@ use robust::Coord;
 
 use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex, chain_ties};
-use crate::morph::SurfaceLocator;
+use crate::morph::{SurfaceLocator, barycentric};
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
@@ -151,6 +151,10 @@ pub struct ChunkSpec<'p> {
     /// (`cut_along_line`). `None`: f32 output, cut points where the lines
     /// cross the parent's edges.
     pub cut_lattice: Option<u32>,
+    /// Quantized output: the height step the file rounds every height to
+    /// (`Quantization::step_y_m`), which each triangle's target leaves room
+    /// for ([`Targets::rounding`]). `None`: f32 output.
+    pub height_step: Option<f64>,
 }
 
 impl ChunkSpec<'_> {
@@ -179,6 +183,7 @@ impl ChunkSpec<'_> {
             cancel: None,
             cut_share: CUT_SHARE,
             cut_lattice: None,
+            height_step: None,
         }
     }
 }
@@ -189,7 +194,8 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     let window = Window::new(grid, spec.footprint);
     let grid = &window;
     let (relief, magnitude) = footprint_relief(grid, spec.footprint);
-    let target = Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice());
+    let target =
+        Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice(), spec.height_step);
     let nested = spec.parent.is_some();
     let (mx, mz) = match spec.dividing_lines {
         true => (midpoint((x0, x1)), midpoint((z0, z1))),
@@ -206,13 +212,14 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     // meshed at another share must draw them alike); the dividing lines,
     // inside the chunk, take this chunk's.
     let line_relief = grid.grid.relief_m.max(relief);
-    let border_target = Targets::new(spec.delta_m, line_relief).on_lattice(spec.lattice());
+    let border_target = Targets::new(spec.delta_m, line_relief).on_lattice(spec.lattice(), spec.height_step);
     for (vertical, coord, span) in
         [(false, z0, (x0, x1)), (false, z1, (x0, x1)), (true, x0, (z0, z1)), (true, x1, (z0, z1))]
     {
         refine_line(&mut tin, grid, vertical, coord, span, border_target, nested);
     }
-    let line_target = Targets::with_cut_share(spec.delta_m, line_relief, spec.cut_share).on_lattice(spec.lattice());
+    let line_target =
+        Targets::with_cut_share(spec.delta_m, line_relief, spec.cut_share).on_lattice(spec.lattice(), spec.height_step);
     if let Some(mx) = mx {
         refine_line(&mut tin, grid, true, mx, (z0, z1), line_target, nested);
     }
@@ -236,7 +243,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
                 if tin.version(t) == 0
                     && s.worst.is_none_or(|(_, i, j)| !lines.row_is_line(i) && !lines.col_is_line(j)) =>
             {
-                queue.record(t, 0, s, target.rounds(&tin.corners(t)));
+                queue.record(t, 0, s, target.over(&tin.corners(t)));
             }
             _ => queue.push(&tin, &lines, t),
         }
@@ -285,8 +292,9 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
 /// - Where every corner is a DEM sample (`exact`): nothing. Each sample
 ///   corner is written exactly — its f32 height in f32, relative to a
 ///   translation chosen so that the difference is exact
-///   ([`crate::output::gltf::chunk_origin`]), or on the quantize grid, whose
-///   rounding `mesh_delta` has already taken off δ — and `verify` snaps a
+///   ([`crate::output::gltf::chunk_origin`]), or on the quantize grid less
+///   what its height rounds by ([`Targets::rounding`]: nothing for a DEM of
+///   whole metres at a step of 1/8 m) — and `verify` snaps a
 ///   position within f32 rounding of a sample index to that index. What is
 ///   left is the f64 arithmetic of the two error measurements, which
 ///   `verify` allows for.
@@ -314,6 +322,9 @@ pub struct Targets {
     /// placed on that grid ([`ChunkSpec::cut_lattice`]) and so count as
     /// exact corners.
     pub lattice: f64,
+    /// The height step quantized output rounds every height to (0: f32
+    /// output, whose sample heights are written exactly).
+    pub step_y: f64,
 }
 
 impl Targets {
@@ -325,17 +336,42 @@ impl Targets {
     /// The same with `share` of δ next to cut points.
     pub fn with_cut_share(delta_m: f64, relief_m: f64, share: f64) -> Self {
         let rounding = relief_m * 4.0 * f64::from(f32::EPSILON);
-        Targets { exact: delta_m, cut: (delta_m * share - rounding).max(0.0), lattice: 1.0 }
+        Targets { exact: delta_m, cut: (delta_m * share - rounding).max(0.0), lattice: 1.0, step_y: 0.0 }
     }
 
-    /// The same for a file that holds positions on `lattice` steps per cell.
-    pub fn on_lattice(self, lattice: f64) -> Self {
-        Targets { lattice, ..self }
+    /// The same for a file that holds positions on `lattice` steps per cell
+    /// and, if quantized, heights on multiples of `step_y`.
+    pub fn on_lattice(self, lattice: f64, step_y: Option<f64>) -> Self {
+        Targets { lattice, step_y: step_y.unwrap_or(0.0), ..self }
     }
 
-    /// The target over a triangle, or a line interval, with these corners.
-    fn over(&self, cut: bool) -> f64 {
-        if cut { self.cut } else { self.exact }
+    /// The target over a triangle, or a line interval, with these corners:
+    /// the exact or the cut-point share of δ, less the most any corner's
+    /// height moves when the file rounds it ([`Targets::rounding`]).
+    fn over(&self, corners: &[V]) -> f64 {
+        let share = if self.rounds(corners) { self.cut } else { self.exact };
+        // A triangle with a cut point for a corner keeps half a step
+        // whatever its corners round by: crowded crossings make steep
+        // slivers there, whose planes f64 evaluates only to some 10⁻⁹ m, and
+        // a sample exactly δ off (common on whole metres) would read over δ.
+        let rounding = if self.step_y > 0.0 && is_cut(corners) { self.step_y / 2.0 } else { self.rounding(corners) };
+        share - rounding
+    }
+
+    /// How far rounding to the height step moves the surface anywhere over
+    /// these corners: the most any one of them moves, as the surface at a
+    /// point is a weighted mean of its corners. On a DEM of whole metres
+    /// with a step of 1/8 m, every sample corner stays where it is, so a
+    /// triangle of samples keeps all of δ (one δ − step/2 for every
+    /// triangle cost California at 1 m 4.8 % more vertices); a cut point's
+    /// height (a line's profile between two samples) moves up to half a step.
+    /// Exact: the step is a power of two, so h / step, its rounding and the
+    /// product are exact in f64.
+    pub fn rounding(&self, corners: &[V]) -> f64 {
+        if self.step_y == 0.0 {
+            return 0.0;
+        }
+        corners.iter().map(|v| (v.h - (v.h / self.step_y).round() * self.step_y).abs()).fold(0.0, f64::max)
     }
 
     /// Whether a grid coordinate is off the grid the file holds exactly.
@@ -742,7 +778,7 @@ fn refine_line(tin: &mut Tin, grid: &Window, vertical: bool, coord: u32, span: S
     let mut stack: Vec<((f64, u32), (f64, u32))> = pts.windows(2).map(|w| (w[0], w[1])).collect();
     while let Some((a, b)) = stack.pop() {
         let (ha, hb) = (tin.pts[a.1 as usize].h, tin.pts[b.1 as usize].h);
-        let target = target.over(target.off(a.0) || target.off(b.0));
+        let target = target.over(&[tin.pts[a.1 as usize], tin.pts[b.1 as usize]]);
         let first = (a.0 + 1e-9).ceil() as i64;
         let last = (b.0 - 1e-9).floor() as i64;
         let mut worst: Option<(f64, u32, f64)> = None;
@@ -988,19 +1024,18 @@ impl Queue<'_> {
                 worst = Some((err, i, j));
             }
         });
-        let rounds = self.target.rounds(&tri);
-        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, rounds);
+        let target = self.target.over(&tri);
+        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, target);
     }
 
     /// Records what triangle `t` (as it is now) holds, and queues its worst
     /// sample if that is beyond the target.
-    fn record(&mut self, t: u32, version: u32, found: TriangleScan, cut: bool) {
+    fn record(&mut self, t: u32, version: u32, found: TriangleScan, target: f64) {
         if self.scans.len() <= t as usize {
             let none = TriangleScan { max_err: 0.0, coverage: None, worst: None };
             self.scans.resize(t as usize + 1, Scan { version: u32::MAX, found: none });
         }
         self.scans[t as usize] = Scan { version, found };
-        let target = self.target.over(cut);
         let c = found.worst.filter(|w| w.0 > target).map(|(err, i, j)| Candidate { err, t, i, j });
         self.heap.set(t, c);
     }
@@ -1121,6 +1156,9 @@ fn finish(
     let mut max_err_cut: f64 = 0.0;
     let mut parent_locator = None;
     let lattice = spec.lattice();
+    // Errors as the file will draw them: plus the most a corner's height
+    // rounds (quantized output), within which every target left room.
+    let heights = Targets::new(spec.delta_m, 0.0).on_lattice(lattice, spec.height_step);
     let mut seeds = Vec::with_capacity(n);
     for t in 0..n as u32 {
         let tri = tin.corners(t);
@@ -1130,14 +1168,25 @@ fn finish(
         // a scan that holds is handed to the children.
         let cut = is_cut(&tri);
         let rounds = tri.iter().any(|v| off_lattice(v.x, lattice) || off_lattice(v.z, lattice));
-        let any = match scans.get(t as usize) {
-            Some(s) if s.version == tin.version(t) && !cut => {
+        // Where a corner's height rounds, a sample's error as written is
+        // bounded by its own share of the corners' rounding (the barycentric
+        // mean: a sample on a line weighs only that line's ends, which its
+        // 1-D target left room for), so such a triangle is scanned again.
+        let r = tri.map(|v| heights.rounding(&[v]));
+        let rounded = r.iter().any(|&r| r > 0.0);
+        let weights = tri.map(|v| MeshVertex { x: v.x, z: v.z, h: 0.0, ph: 0.0 });
+        let moved = |i: u32, j: u32| {
+            let [a, b, c] = [0, 1, 2].map(|k| MeshVertex { h: r[k], ..weights[k] });
+            barycentric(&a, &b, &c, f64::from(j), f64::from(i)).1.clamp(0.0, r[0].max(r[1]).max(r[2]))
+        };
+        let valid = scans.get(t as usize).filter(|s| s.version == tin.version(t) && !cut);
+        seeds.push(valid.map(|s| s.found));
+        let any = match valid {
+            Some(s) if !rounded => {
                 max_err = max_err.max(s.found.max_err);
-                seeds.push(Some(s.found));
                 s.found.coverage
             }
             _ => {
-                seeds.push(None);
                 // A sample on a border or dividing line was decided in 1-D
                 // against its interval's own target: δ where both ends are
                 // samples, so it may be exactly δ off even in a triangle
@@ -1150,7 +1199,7 @@ fn finish(
                     }
                     let on_line = lines.row_is_line(i) || lines.col_is_line(j);
                     let class = if rounds && !on_line { &mut max_err_cut } else { &mut max_err };
-                    *class = class.max(e);
+                    *class = class.max(if rounded { e + moved(i, j) } else { e });
                 })
             }
         };
