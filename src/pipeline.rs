@@ -277,7 +277,10 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         let mut extras = tileset_extras(&hf, opts, &tree);
         extras.texture = texture;
         let doc = tileset_json(&tree, &records, &extras);
-        let bytes = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
+        // Compact: a client reads the whole index before it draws anything,
+        // and indentation was four fifths of it (California at 1 m, 27 270
+        // tiles: 42.0 MB pretty, 7.9 MB compact). `jq . tileset.json` reads it.
+        let bytes = serde_json::to_vec(&doc).expect("JSON of plain values");
         let path = tmp.join("tileset.json");
         std::fs::write(&path, &bytes).map_err(|source| BuildError::Io { path, source })?;
         if opts.out.exists() {
