@@ -368,12 +368,8 @@ impl Targets {
     /// Exact: the step is a power of two, so h / step, its rounding and the
     /// product are exact in f64.
     pub fn rounding(&self, corners: &[V]) -> f64 {
-        if self.step_y == 0.0 {
-            return 0.0;
-        }
-        corners.iter().map(|v| (v.h - (v.h / self.step_y).round() * self.step_y).abs()).fold(0.0, f64::max)
+        corners.iter().map(|v| rounds_by(v.h, self.step_y)).fold(0.0, f64::max)
     }
-
     /// Whether a grid coordinate is off the grid the file holds exactly.
     #[inline]
     fn off(&self, c: f64) -> bool {
@@ -384,6 +380,12 @@ impl Targets {
     fn rounds(&self, corners: &[V]) -> bool {
         corners.iter().any(|v| self.off(v.x) || self.off(v.z))
     }
+}
+
+/// How far a height moves when the file rounds it to a multiple of `step`
+/// (0: f32 output, which writes sample heights exactly).
+fn rounds_by(h: f64, step: f64) -> f64 {
+    if step == 0.0 { 0.0 } else { (h - (h / step).round() * step).abs() }
 }
 
 /// Whether `c` (any finite coordinate) is a whole number.
@@ -1156,9 +1158,6 @@ fn finish(
     let mut max_err_cut: f64 = 0.0;
     let mut parent_locator = None;
     let lattice = spec.lattice();
-    // Errors as the file will draw them: plus the most a corner's height
-    // rounds (quantized output), within which every target left room.
-    let heights = Targets::new(spec.delta_m, 0.0).on_lattice(lattice, spec.height_step);
     let mut seeds = Vec::with_capacity(n);
     for t in 0..n as u32 {
         let tri = tin.corners(t);
@@ -1172,12 +1171,13 @@ fn finish(
         // bounded by its own share of the corners' rounding (the barycentric
         // mean: a sample on a line weighs only that line's ends, which its
         // 1-D target left room for), so such a triangle is scanned again.
-        let r = tri.map(|v| heights.rounding(&[v]));
+        // Errors as the file will draw them, within which every target left
+        // room: the corners as they move, interpolated like heights.
+        let r = tri.map(|v| rounds_by(v.h, spec.height_step.unwrap_or(0.0)));
         let rounded = r.iter().any(|&r| r > 0.0);
-        let weights = tri.map(|v| MeshVertex { x: v.x, z: v.z, h: 0.0, ph: 0.0 });
+        let [ra, rb, rc] = [0, 1, 2].map(|k| MeshVertex { x: tri[k].x, z: tri[k].z, h: r[k], ph: 0.0 });
         let moved = |i: u32, j: u32| {
-            let [a, b, c] = [0, 1, 2].map(|k| MeshVertex { h: r[k], ..weights[k] });
-            barycentric(&a, &b, &c, f64::from(j), f64::from(i)).1.clamp(0.0, r[0].max(r[1]).max(r[2]))
+            barycentric(&ra, &rb, &rc, f64::from(j), f64::from(i)).1.clamp(0.0, r[0].max(r[1]).max(r[2]))
         };
         let valid = scans.get(t as usize).filter(|s| s.version == tin.version(t) && !cut);
         seeds.push(valid.map(|s| s.found));

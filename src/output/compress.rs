@@ -216,8 +216,8 @@ impl Quantization {
     /// The largest |surface − sample| over the samples under `chunk`'s
     /// triangles that have a cut-point corner, with every corner where the
     /// written file puts it: heights on the grid (which the mesher's
-    /// targets leave room for) and a cut point, off the sample grid, moved along its dividing
-    /// line to the nearest step. Half a step (1/512 of a cell in a 250-cell
+    /// targets leave room for) and a cut point, off the sample grid, moved
+    /// along its dividing line to the nearest step. Half a step (1/512 of a cell in a 250-cell
     /// chunk) on a steep triangle can tilt it by more than the mesher's
     /// margin next to cut points (Provence at 1 m, Verdon gorge: 8.058 m in
     /// a chunk of δ 8 m), which is what this finds. Triangles without a cut
