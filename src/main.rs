@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
 use terrachunk::config::{Compress, Config, TextureFormat};
-use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::{read_chunk, verify};
 
@@ -596,7 +596,7 @@ fn print_summary(r: &Report, out: &std::path::Path) {
             "warning: {} chunk(s) miss δ as written even so (cut points rounded to the u16 grid on steep ground; \
              `verify` reports them, --compress none avoids it): {}",
             r.over_delta_as_written.len(),
-            worst_over_delta(&r.over_delta_as_written, &r.levels, 10)
+            worst_over_delta(&r.over_delta_as_written, 10)
         );
     }
     if let Some(b) = r.peak_rss_bytes {
@@ -608,15 +608,16 @@ fn print_summary(r: &Report, out: &std::path::Path) {
 /// much it misses (a miss of 10⁻⁹ m printed as "1.000 m" said nothing), and
 /// how many more the report lists: California once warned of 865 chunks on
 /// one line.
-fn worst_over_delta(over: &[(String, f64)], levels: &[terrachunk::pipeline::LevelReport], shown: usize) -> String {
-    let delta = |key: &str| {
-        let level = key.split('/').next().and_then(|l| l.parse::<u32>().ok());
-        levels.iter().find(|l| Some(l.level) == level).map_or(f64::NAN, |l| l.delta_m)
-    };
-    let mut by_excess: Vec<(f64, f64, &str)> = over.iter().map(|(k, e)| (e - delta(k), *e, k.as_str())).collect();
-    by_excess.sort_by(|a, b| b.0.total_cmp(&a.0).then_with(|| a.2.cmp(b.2)));
-    let mut list: Vec<String> =
-        by_excess.iter().take(shown).map(|(x, e, k)| format!("{k} ({e:.4} m, {x:.1e} m over δ {} m)", e - x)).collect();
+fn worst_over_delta(over: &[OverDelta], shown: usize) -> String {
+    let mut by_excess: Vec<&OverDelta> = over.iter().collect();
+    by_excess.sort_by(|a, b| {
+        (b.error_m - b.delta_m).total_cmp(&(a.error_m - a.delta_m)).then_with(|| a.chunk.cmp(&b.chunk))
+    });
+    let mut list: Vec<String> = by_excess
+        .iter()
+        .take(shown)
+        .map(|o| format!("{} ({:.4} m, {:.1e} m over δ {} m)", o.chunk, o.error_m, o.error_m - o.delta_m, o.delta_m))
+        .collect();
     if over.len() > shown {
         list.push(format!("and {} more (`--report FILE` lists them all)", over.len() - shown));
     }
@@ -626,23 +627,19 @@ fn worst_over_delta(over: &[(String, f64)], levels: &[terrachunk::pipeline::Leve
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terrachunk::pipeline::LevelReport;
 
     #[test]
     fn the_over_delta_warning_names_the_worst_chunks_and_counts_the_rest() {
-        let levels: Vec<LevelReport> = [4.0, 2.0, 1.0]
-            .iter()
-            .enumerate()
-            .map(|(l, &d)| LevelReport { level: l as u32, delta_m: d, ..Default::default() })
-            .collect();
-        let over: Vec<(String, f64)> =
-            vec![("2/0/0".into(), 1.000_000_001), ("0/0/0".into(), 4.5), ("1/3/1".into(), 2.25), ("2/5/7".into(), 1.1)];
-        let text = worst_over_delta(&over, &levels, 2);
+        let over: Vec<OverDelta> =
+            [("2/0/0", 1.000_000_001, 1.0), ("0/0/0", 4.5, 4.0), ("1/3/1", 2.25, 2.0), ("2/5/7", 1.1, 1.0)]
+                .map(|(chunk, error_m, delta_m)| OverDelta { chunk: chunk.into(), error_m, delta_m })
+                .into();
+        let text = worst_over_delta(&over, 2);
         assert_eq!(
             text,
             "0/0/0 (4.5000 m, 5.0e-1 m over δ 4 m), 1/3/1 (2.2500 m, 2.5e-1 m over δ 2 m), and 2 more (`--report FILE` lists them all)"
         );
-        let all = worst_over_delta(&over, &levels, 10);
+        let all = worst_over_delta(&over, 10);
         assert!(all.ends_with("2/0/0 (1.0000 m, 1.0e-9 m over δ 1 m)"), "{all}");
     }
 }

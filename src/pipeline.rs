@@ -214,9 +214,20 @@ pub struct Report {
     /// cut points, so that rounding those sideways to the grid keeps δ.
     pub remeshed_for_cut_points: usize,
     /// Quantized output: chunks that miss δ as written even with no error
-    /// left next to their cut points, `L/x/y` and the error as written, m
-    /// (each written at the margin that came closest; `verify` reports them).
-    pub over_delta_as_written: Vec<(String, f64)>,
+    /// left next to their cut points (each written at the margin that came
+    /// closest; `verify` reports them).
+    pub over_delta_as_written: Vec<OverDelta>,
+}
+
+/// A chunk whose error as written is beyond its δ.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct OverDelta {
+    /// `L/x/y`.
+    pub chunk: String,
+    /// Its error as written, metres.
+    pub error_m: f64,
+    /// Its level's δ, metres.
+    pub delta_m: f64,
 }
 
 /// Wall time per pipeline stage, seconds.
@@ -754,7 +765,8 @@ fn build_levels(
         report.remeshed_for_cut_points += usize::from(c.remeshed);
         if let Some(e) = c.over_delta_m {
             let k = c.record.key;
-            report.over_delta_as_written.push((format!("{}/{}/{}", k.level, k.x, k.y), e));
+            let chunk = format!("{}/{}/{}", k.level, k.x, k.y);
+            report.over_delta_as_written.push(OverDelta { chunk, error_m: e, delta_m: delta });
         }
     }
     report.bytes = run.bytes.load(Ordering::Relaxed);
