@@ -567,8 +567,9 @@ fn print_summary(r: &Report, out: &std::path::Path) {
     let vertices: usize = r.levels.iter().map(|l| l.vertices).sum();
     if chunks > 0 {
         println!(
-            "leaves up to {} cells wide; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
-            r.leaf_cells,
+            "leaves up to {} cells wide{}; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
+            r.leaf_width_cells,
+            if r.leaf_width_cells < r.leaf_cells { format!(" (leaf_cells {})", r.leaf_cells) } else { String::new() },
             vertices as f64 / chunks as f64,
             r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
         );

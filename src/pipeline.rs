@@ -208,8 +208,13 @@ pub struct Report {
     /// Wall seconds of the attempts with fewer refine levels that stopped at
     /// a chunk too dense for u16 indices (part of `seconds.chunks`).
     pub discarded_s: f64,
-    /// Widest deepest-level chunk, in cells (set, or chosen from the data).
+    /// The bound on a deepest-level chunk's width, in cells (set, or chosen
+    /// from the data).
     pub leaf_cells: u32,
+    /// The widest deepest-level chunk, in cells (at most `leaf_cells`: the
+    /// tree halves the grid, so California's 8 400 cells with `leaf_cells =
+    /// 256` make leaves of 131 × 150).
+    pub leaf_width_cells: u32,
     /// Quantized output: chunks meshed again with a wider margin next to
     /// cut points, so that rounding those sideways to the grid keeps δ.
     pub remeshed_for_cut_points: usize,
@@ -369,6 +374,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
                 report.refine_estimated = estimated;
                 report.discarded_s = discarded.as_secs_f64();
                 report.leaf_cells = leaf_cells;
+                report.leaf_width_cells = tree.widest_cells(tree.depth()).into_iter().max().unwrap_or(0);
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
             // Leaves wider than a dense leaf may be: refine levels keep their
