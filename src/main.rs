@@ -64,6 +64,11 @@ enum Command {
         /// Also write a tangent-space normal map from the full-resolution DEM.
         #[arg(long)]
         normal_map: bool,
+        /// Widest a deepest-level chunk may be, in cells, 2..=4096 [default:
+        /// chosen from the data]. Wider leaves make a smaller tileset with
+        /// fewer leaf triangles but cull in bigger pieces (README, "Chunk size").
+        #[arg(long)]
+        leaf_cells: Option<u32>,
         /// Build every chunk to the deepest level, even below one that already
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
@@ -219,6 +224,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             jpeg_quality,
             max_texture_px,
             normal_map,
+            leaf_cells,
             complete_tree,
             compress,
             force,
@@ -262,6 +268,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 cfg.max_texture_px = v;
             }
             cfg.normal_map |= normal_map;
+            if leaf_cells.is_some() {
+                cfg.leaf_cells = leaf_cells;
+            }
             cfg.complete_tree |= complete_tree;
             if let Some(c) = compress {
                 cfg.compress = match c {

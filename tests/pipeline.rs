@@ -428,6 +428,31 @@ fn summary_report_and_inspect_tell_the_user_what_was_built() {
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("OK"));
 }
 
+/// `--leaf-cells` sets the bound on leaf width from the command line; the
+/// summary and the report give the widest leaf actually built, which the
+/// grid's halving may keep below the bound (Mount St Helens' 326 × 467
+/// cells under a bound of 100 halve to leaves of at most 41 × 59), and an
+/// out-of-range width is refused before anything is written.
+#[test]
+fn leaf_cells_from_the_command_line_bounds_the_leaves_built() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let report = tmp.path().join("report.json");
+    let g = fixture("mount_st_helens_30m.tif");
+    let (g, o_s, r_s) = (g.to_str().unwrap(), out.to_str().unwrap(), report.to_str().unwrap());
+    let o = cli(&["build", g, "-o", o_s, "--texture", "none", "--leaf-cells", "100", "--report", r_s]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["leaf_cells"], 100);
+    let widest = r["leaf_width_cells"].as_u64().unwrap();
+    assert!(widest <= 100 && widest > 50, "widest leaf {widest} cells");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains(&format!("leaves up to {widest} cells wide (leaf_cells 100)")), "{text}");
+    let bad = tmp.path().join("bad");
+    let args = ["build", g, "-o", bad.to_str().unwrap(), "--leaf-cells", "1"];
+    assert_bad_input(&args, &bad, "leaf_cells = 1: must be within 2..=4096 cells");
+}
+
 #[test]
 fn pipeline_toml_documents_exactly_the_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline.toml");
