@@ -321,6 +321,21 @@ fn meshopt_modes_decode_to_what_quantize_writes_and_pack_under_ten_bytes_per_ver
         }
     }
     assert!(shared < written, "meshopt-v1 stores {shared} vertices, quantize {written}");
+    // Chunks over 255 cells wide (this grid's top levels) write POSITION
+    // through the EXPONENTIAL filter, in 1/256-cell mantissas; the
+    // comparison above shows they decode to quantize's surface. Narrower
+    // chunks keep u16 positions.
+    let exponential = |bytes: &[u8]| {
+        glb_json(bytes)["bufferViews"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|v| v["extensions"]["KHR_meshopt_compression"]["filter"] == "EXPONENTIAL")
+    };
+    let glbs: Vec<&Vec<u8>> =
+        m.iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")).map(|(_, d)| d).collect();
+    let wide = glbs.iter().filter(|d| exponential(d)).count();
+    assert!(wide > 0 && wide < glbs.len(), "{wide} of {} chunks with EXPONENTIAL positions", glbs.len());
     // meshopt decodes to exactly the bytes quantize writes, in the same layout.
     let (q, m) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("meshopt")));
     assert_eq!(q.len(), m.len(), "quantize and meshopt make the same chunks");

@@ -517,9 +517,9 @@ pub struct Stream {
     triangles: bool,
     /// Vertices the indices refer to (index streams only).
     vertices: usize,
-    /// What `meshopt` encodes instead, for the OCTAHEDRAL filter to decode
-    /// into the bytes written.
-    filtered: Option<Vec<u8>>,
+    /// What `meshopt` encodes instead, and the filter (OCTAHEDRAL or
+    /// EXPONENTIAL) that decodes it into the bytes written.
+    filtered: Option<(&'static str, Vec<u8>)>,
 }
 
 fn align4(bin: &mut Vec<u8>) {
@@ -589,8 +589,13 @@ impl Column {
 
 /// Lays `columns` out interleaved in one view, primitive after primitive,
 /// and returns each primitive's accessors in column order. `filtered` is
-/// what meshopt encodes instead (the OCTAHEDRAL filter's input).
-fn push_columns(sink: &mut Sink, columns: &[Column], counts: &[usize], filtered: Option<Vec<u8>>) -> Vec<Vec<usize>> {
+/// what meshopt encodes instead, with the filter that decodes it.
+fn push_columns(
+    sink: &mut Sink,
+    columns: &[Column],
+    counts: &[usize],
+    filtered: Option<(&'static str, Vec<u8>)>,
+) -> Vec<Vec<usize>> {
     let stride: usize = columns.iter().map(|c| c.size).sum();
     let total: usize = counts.iter().sum();
     let mut bytes = Vec::with_capacity(stride * total);
@@ -639,6 +644,39 @@ fn position_column(frame: &Frame, prims: &[PrimData]) -> Column {
         })
         .collect();
     Column { size: 8, parts }
+}
+
+/// POSITION for a chunk whose horizontal step is coarser than 1/256 of a
+/// cell (one over 255 cells wide), through meshoptimizer's EXPONENTIAL
+/// filter: the same step counts as f32 (12 bytes per vertex, decoded), each
+/// encoded as a 24-bit mantissa in 1/256-cell units and an exponent that
+/// scales it back. In u16 steps of 1/128 cell or coarser, a sample's x and
+/// z low bytes carry the index's low bits, which the vertex codec pays for
+/// (Fuji at 1 m, levels 0 and 1: 3.10 and 2.97 bytes per vertex for
+/// positions alone, 2.56 and 2.46 this way; 2.30 at the 64-cell leaves);
+/// in 1/256-cell units a sample's low byte is 0, as in a narrow chunk's.
+/// Heights keep their steps (exponent 0). The mantissas stay below 2^24
+/// while a chunk is under 65 536 cells wide.
+fn exp_position_column(frame: &Frame, prims: &[PrimData]) -> (Column, Vec<u8>) {
+    let up = 8 - (frame.k.log2().round() as i32).min(8);
+    let exp = |m: u32, e: i32| ((e as i8 as u8 as u32) << 24) | (m & 0x00ff_ffff);
+    let mut filtered = Vec::new();
+    let parts = prims
+        .iter()
+        .map(|p| {
+            let q: Vec<[u16; 3]> = p.part.positions.iter().map(|v| frame.position(v)).collect();
+            let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
+            let (min, max): (Vec<f32>, Vec<f32>) =
+                (min.iter().map(|&v| v as f32).collect(), max.iter().map(|&v| v as f32).collect());
+            let bytes = q.iter().flat_map(|v| v.map(f32::from).into_iter().flat_map(f32::to_le_bytes)).collect();
+            for v in &q {
+                let e = [exp(u32::from(v[0]) << up, -up), exp(u32::from(v[1]), 0), exp(u32::from(v[2]) << up, -up)];
+                filtered.extend(e.into_iter().flat_map(u32::to_le_bytes));
+            }
+            (bytes, json!({"componentType": 5126, "type": "VEC3", "min": min, "max": max}))
+        })
+        .collect();
+    (Column { size: 12, parts }, filtered)
 }
 
 /// The morph target's POSITION: whole height steps in the narrowest type
@@ -713,10 +751,21 @@ pub fn write_quantized(
     prims: &[PrimData],
     triangles: &[(usize, &[u32])],
     normals: NormalEncoding,
+    codec: Option<Meshopt>,
 ) -> Vec<(Value, usize, usize)> {
     let counts: Vec<usize> = prims.iter().map(|p| p.part.positions.len()).collect();
-    let mut columns = vec![position_column(frame, prims), delta_column(frame, prims)];
-    let mut names = vec!["POSITION", ""];
+    // meshopt-v1, a chunk over 255 cells wide: POSITION in a view of its
+    // own, through the EXPONENTIAL filter (see `exp_position_column`).
+    let exp_positions = (codec == Some(Meshopt::Khr) && frame.k < 256.0).then(|| {
+        let (column, filtered) = exp_position_column(frame, prims);
+        push_columns(sink, &[column], &counts, Some(("EXPONENTIAL", filtered)))
+    });
+    let mut columns = vec![delta_column(frame, prims)];
+    let mut names = vec![""];
+    if exp_positions.is_none() {
+        columns.insert(0, position_column(frame, prims));
+        names.insert(0, "POSITION");
+    }
     let uv_accessor = json!({"componentType": 5123, "normalized": true, "type": "VEC2"});
     let uv_bytes = |t: &[f32; 2]| t.map(unorm16).into_iter().flat_map(u16::to_le_bytes).collect();
     let uvs: Option<Vec<&[[f32; 2]]>> = prims.iter().map(|p| p.uv.as_deref()).collect();
@@ -748,7 +797,7 @@ pub fn write_quantized(
         first += n;
     }
     let filtered = oct.iter().flat_map(|v| v.map(|c| c as u8)).collect();
-    let normal = push_columns(sink, &[Column { size: 4, parts }], &counts, Some(filtered));
+    let normal = push_columns(sink, &[Column { size: 4, parts }], &counts, Some(("OCTAHEDRAL", filtered)));
 
     // Triangles, as the index codec rotates them.
     let all: Vec<u32> = triangles.iter().flat_map(|(_, t)| t.iter().copied()).collect();
@@ -769,12 +818,16 @@ pub fn write_quantized(
         sink.accessors.push(accessor);
         first += n;
         let mut attributes = json!({"NORMAL": normal[p][0]});
+        if let Some(positions) = &exp_positions {
+            attributes["POSITION"] = positions[p][0].into();
+        }
         for (name, &a) in names.iter().zip(&vertex[p]) {
             if !name.is_empty() {
                 attributes[*name] = a.into();
             }
         }
-        out.push((attributes, sink.accessors.len() - 1, vertex[p][1]));
+        let delta = names.iter().position(|n| n.is_empty()).expect("the morph delta column");
+        out.push((attributes, sink.accessors.len() - 1, vertex[p][delta]));
     }
     out
 }
@@ -795,7 +848,7 @@ pub fn meshopt_pack(sink: &mut Sink, codec: Meshopt) -> usize {
         let view = &mut sink.views[s.view];
         let (offset, length) =
             (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
-        let raw = s.filtered.as_deref().unwrap_or(&sink.bin[offset..offset + length]);
+        let raw = s.filtered.as_ref().map_or(&sink.bin[offset..offset + length], |(_, f)| f.as_slice());
         let encoded = if s.triangles {
             let indices: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
             meshopt::encode_index_buffer(&indices, s.vertices).expect("a triangle list")
@@ -811,8 +864,8 @@ pub fn meshopt_pack(sink: &mut Sink, codec: Meshopt) -> usize {
         if !packed.is_empty() {
             ext["byteOffset"] = packed.len().into();
         }
-        if s.filtered.is_some() {
-            ext["filter"] = "OCTAHEDRAL".into();
+        if let Some((filter, _)) = &s.filtered {
+            ext["filter"] = (*filter).into();
         }
         view["extensions"] = json!({ codec.extension(): ext });
         packed.extend_from_slice(&encoded);
@@ -1072,7 +1125,7 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                     return Err(format!("bufferView {v}: compressed data outside the binary chunk"));
                 }
                 let filter = m["filter"].as_str().unwrap_or("NONE");
-                if filter != "NONE" && filter != "OCTAHEDRAL" {
+                if !["NONE", "OCTAHEDRAL", "EXPONENTIAL"].contains(&filter) {
                     return Err(format!("bufferView {v}: meshopt filter {filter} is not supported"));
                 }
                 let (count, stride) = (num(&m["count"]).unwrap_or(0), num(&m["byteStride"]).unwrap_or(0));
@@ -1103,6 +1156,15 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                         oct.iter().flat_map(|v| v.map(|c| c as u8)).collect()
                     }
                     ("OCTAHEDRAL", _) => return Err(format!("bufferView {v}: OCTAHEDRAL filter with stride {stride}")),
+                    ("EXPONENTIAL", _) if stride.is_multiple_of(4) => {
+                        let mut words: Vec<[u32; 1]> =
+                            decoded.chunks_exact(4).map(|c| [u32::from_le_bytes([c[0], c[1], c[2], c[3]])]).collect();
+                        meshopt::decode_filter_exp(&mut words);
+                        words.iter().flat_map(|w| w[0].to_le_bytes()).collect()
+                    }
+                    ("EXPONENTIAL", _) => {
+                        return Err(format!("bufferView {v}: EXPONENTIAL filter with stride {stride}"));
+                    }
                     _ => decoded,
                 }
             }

@@ -134,7 +134,7 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         None => prims.iter().map(|p| float_attributes(&mut sink, p, origin)).collect(),
         Some(f) => {
             let triangles: Vec<(usize, &[u32])> = triangles.iter().map(|(k, t)| (*k, t.as_slice())).collect();
-            compress::write_quantized(&mut sink, f, &prims, &triangles, ctx.normals)
+            compress::write_quantized(&mut sink, f, &prims, &triangles, ctx.normals, ctx.meshopt)
         }
     };
     let prims: Vec<Value> = parts
