@@ -661,11 +661,10 @@ fn position_column(frame: &Frame, prims: &[PrimData]) -> Column {
 /// (Fuji at 1 m, levels 0 and 1: 3.10 and 2.97 bytes per vertex for
 /// positions alone, 2.56 and 2.46 this way; 2.30 at the 64-cell leaves);
 /// in 1/256-cell units a sample's low byte is 0, as in a narrow chunk's.
-/// Heights keep their steps (exponent 0). The mantissas stay below 2^24
-/// while a chunk is under 65 536 cells wide.
+/// Heights keep their steps (exponent 0). See [`exp_word`] for the range.
 fn exp_position_column(frame: &Frame, prims: &[PrimData]) -> (Column, Vec<u8>) {
-    let up = 8 - (frame.k.log2().round() as i32).min(8);
-    let exp = |m: u32, e: i32| ((e as i8 as u8 as u32) << 24) | (m & 0x00ff_ffff);
+    let shift = frame.k.log2().round() as u32;
+    let exp = |v: u16| exp_word(v, shift);
     let mut filtered = Vec::new();
     let parts = prims
         .iter()
@@ -676,13 +675,24 @@ fn exp_position_column(frame: &Frame, prims: &[PrimData]) -> (Column, Vec<u8>) {
                 (min.iter().map(|&v| v as f32).collect(), max.iter().map(|&v| v as f32).collect());
             let bytes = q.iter().flat_map(|v| v.map(f32::from).into_iter().flat_map(f32::to_le_bytes)).collect();
             for v in &q {
-                let e = [exp(u32::from(v[0]) << up, -up), exp(u32::from(v[1]), 0), exp(u32::from(v[2]) << up, -up)];
+                let e = [exp(v[0]), exp_word(v[1], 8), exp(v[2])];
                 filtered.extend(e.into_iter().flat_map(u32::to_le_bytes));
             }
             (bytes, json!({"componentType": 5126, "type": "VEC3", "min": min, "max": max}))
         })
         .collect();
     (Column { size: 12, parts }, filtered)
+}
+
+/// `steps` (a u16 count of 2^-`shift` cells) as one EXPONENTIAL-filter
+/// word that decodes to exactly `steps`: the mantissa in 1/256-cell units
+/// (`steps` · 2^(8 − shift)), the exponent undoing that. The mantissa is a
+/// signed 24-bit number, so it is shifted by at most 7: only a chunk of
+/// 32 768 cells or more (step 1 cell) keeps a low bit in its low byte.
+fn exp_word(steps: u16, shift: u32) -> u32 {
+    let up = 8u32.saturating_sub(shift).min(7);
+    let mantissa = u32::from(steps) << up;
+    ((-(up as i32) as i8 as u8 as u32) << 24) | mantissa
 }
 
 /// The morph target's POSITION: whole height steps in the narrowest type
@@ -749,7 +759,9 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
 ///   codec restarts its vertex counter, so one stream costs no more than two.
 ///
 /// Three views instead of one per stream and primitive shorten the JSON and
-/// save each meshopt stream's header and tail. Returns each primitive's
+/// save each meshopt stream's header and tail. With `meshopt-v1`, a chunk
+/// over 255 cells wide has a fourth, first: POSITION alone, through the
+/// EXPONENTIAL filter (see [`exp_position_column`]). Returns each primitive's
 /// `attributes`, index accessor and morph target accessor (its set's).
 pub fn write_quantized(
     sink: &mut Sink,
@@ -1237,4 +1249,30 @@ fn read_accessor(
         }
     }
     Ok((out, n))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every u16 step count at every horizontal step decodes, through
+    /// meshoptimizer's own EXPONENTIAL decoder, to itself; a sample of a
+    /// chunk up to 32 767 cells wide lands on a mantissa whose low byte is
+    /// 0 (what makes the filter worth it); and the mantissa never reaches
+    /// the sign bit (the widest chunks' 65 535 steps once would have).
+    #[test]
+    fn exponential_position_words_decode_exactly() {
+        for shift in 0..=8u32 {
+            let mut words: Vec<[u32; 1]> = (0..=u16::MAX).map(|v| [exp_word(v, shift)]).collect();
+            assert!(words.iter().all(|w| w[0] & 0x0080_0000 == 0), "shift {shift}: a negative mantissa");
+            if shift >= 1 {
+                let per_cell = 1u32 << shift;
+                assert!((0..=u16::MAX).step_by(per_cell as usize).all(|v| exp_word(v, shift) & 0xff == 0));
+            }
+            meshopt::decode_filter_exp(&mut words);
+            for (v, w) in words.iter().enumerate() {
+                assert_eq!(f32::from_bits(w[0]), v as f32, "shift {shift}, {v} steps");
+            }
+        }
+    }
 }
