@@ -112,8 +112,14 @@ pub fn load_chunk(path: &Path) -> Result<ChunkMesh> {
     decode_chunk(&bytes).with_context(|| path.display().to_string())
 }
 
-/// Decodes a chunk from .glb bytes.
+/// Decodes a chunk from .glb bytes. A `--compress quantize`, `meshopt` or
+/// `meshopt-v1` chunk is first turned into plain f32 glTF by the library's
+/// own decoder (`terrachunk::output::compress::decompress`: the node scale
+/// folded into the positions and morph deltas, the meshopt streams
+/// decoded), which the `gltf` crate reads.
 pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
+    let plain = terrachunk::output::compress::decompress(bytes).map_err(anyhow::Error::msg)?;
+    let bytes = plain.as_ref().map_or(bytes, |d| d.glb.as_slice());
     let (doc, buffers, images) = gltf::import_slice(bytes)?;
     let Some(node) = doc.nodes().next() else { bail!("no node") };
     let Some(mesh) = node.mesh() else { bail!("the node has no mesh") };
@@ -223,4 +229,80 @@ fn unique_edges(indices: &[u32]) -> Vec<u32> {
     e.sort_unstable();
     e.dedup();
     e.into_iter().flat_map(|(a, b)| [a, b]).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrachunk::config::{Compress, Config};
+    use terrachunk::pipeline::{BuildOptions, build};
+    use terrachunk::texture::TextureSource;
+
+    /// The distinct world positions (f64 from the f64 translation and the
+    /// f32 local position) of a chunk's surface triangles, sorted.
+    fn surface_points(m: &ChunkMesh) -> Vec<[u64; 3]> {
+        let mut v: Vec<[u64; 3]> = m.indices[..m.surface_indices as usize]
+            .iter()
+            .map(|&i| {
+                let p = m.vertices[i as usize].pos;
+                [0, 1, 2].map(|a| (m.translation[a] + f64::from(p[a])).to_bits())
+            })
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    }
+
+    /// The viewer opens every `--compress` mode: quantized and meshopt
+    /// chunks go through the library's decoder first (before, the `gltf`
+    /// crate refused their required extensions and nothing was drawn).
+    /// `quantize` and `meshopt-v1` mesh alike, so each chunk loads as the
+    /// same surface from both (meshopt-v1's wide chunks hold EXPONENTIAL
+    /// positions, its narrow ones u16), with its texture and its skirt.
+    #[test]
+    fn every_compress_mode_loads_and_meshopt_v1_as_the_same_surface_as_quantize() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/mount_st_helens_30m.tif");
+        let out = |compress: Compress| {
+            let dir = tmp.path().join(format!("{compress:?}"));
+            build(&BuildOptions {
+                inputs: vec![dem.clone()],
+                out: dir.clone(),
+                force: false,
+                config: Config { max_error_m: 2.0, compress, ..Config::default() },
+                texture: TextureSource::Generated,
+                progress: false,
+            })
+            .unwrap();
+            Tileset::open(&dir).unwrap()
+        };
+        let (plain, q, v1) = (out(Compress::None), out(Compress::Quantize), out(Compress::MeshoptV1));
+        assert_eq!(q.tree.nodes.len(), v1.tree.nodes.len());
+        for n in 0..q.tree.nodes.len() {
+            let (a, b) = (load_chunk(&q.chunk_path(n)).unwrap(), load_chunk(&v1.chunk_path(n)).unwrap());
+            let uri = &q.tree.nodes[n].uri;
+            assert_eq!(a.surface_triangles(), b.surface_triangles(), "{uri}");
+            assert!(a.surface_triangles() > 0 && a.indices.len() > a.surface_indices as usize, "{uri}: no skirt");
+            assert!(surface_points(&a) == surface_points(&b), "{uri}: meshopt-v1 loads another surface");
+            assert!(a.texture.is_some() && b.texture.is_some(), "{uri}");
+        }
+        // The f32 tileset's chunks too, and the quantized ones lie where
+        // they do (the meshes differ: quantized output meshes each triangle
+        // to δ less its corners' rounding).
+        for n in 0..plain.tree.nodes.len() {
+            let m = load_chunk(&plain.chunk_path(n)).unwrap();
+            let Some(k) = q.tree.nodes.iter().position(|o| o.key == plain.tree.nodes[n].key) else { continue };
+            let q = load_chunk(&q.chunk_path(k)).unwrap();
+            let bounds = |m: &ChunkMesh| {
+                let p = surface_points(m);
+                [0, 1, 2].map(|a| {
+                    let v = p.iter().map(|q| f64::from_bits(q[a]));
+                    (v.clone().fold(f64::INFINITY, f64::min), v.fold(f64::NEG_INFINITY, f64::max))
+                })
+            };
+            for (a, (lo, hi)) in bounds(&m).into_iter().zip(bounds(&q)).enumerate() {
+                assert!((lo.0 - hi.0).abs() < 0.5 && (lo.1 - hi.1).abs() < 2.5, "axis {a}: {lo:?} against {hi:?}");
+            }
+        }
+    }
 }
