@@ -636,13 +636,19 @@ fn push_columns(
     out
 }
 
+/// A primitive's positions in u16 steps, with their per-axis bounds.
+fn position_steps(frame: &Frame, p: &PrimData) -> (Vec<[u16; 3]>, Vec<f64>, Vec<f64>) {
+    let q: Vec<[u16; 3]> = p.part.positions.iter().map(|v| frame.position(v)).collect();
+    let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
+    (q, min, max)
+}
+
 /// POSITION: u16 steps, 8 bytes per vertex, with the primitive's bounds.
 fn position_column(frame: &Frame, prims: &[PrimData]) -> Column {
     let parts = prims
         .iter()
         .map(|p| {
-            let q: Vec<[u16; 3]> = p.part.positions.iter().map(|v| frame.position(v)).collect();
-            let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
+            let (q, min, max) = position_steps(frame, p);
             let (min, max): (Vec<u64>, Vec<u64>) =
                 (min.iter().map(|&v| v as u64).collect(), max.iter().map(|&v| v as u64).collect());
             let bytes = q.iter().flat_map(|v| [v[0], v[1], v[2], 0].into_iter().flat_map(u16::to_le_bytes)).collect();
@@ -669,10 +675,8 @@ fn exp_position_column(frame: &Frame, prims: &[PrimData]) -> (Column, Vec<u8>) {
     let parts = prims
         .iter()
         .map(|p| {
-            let q: Vec<[u16; 3]> = p.part.positions.iter().map(|v| frame.position(v)).collect();
-            let (min, max) = bounds(q.iter().map(|v| v.map(f64::from)));
-            let (min, max): (Vec<f32>, Vec<f32>) =
-                (min.iter().map(|&v| v as f32).collect(), max.iter().map(|&v| v as f32).collect());
+            // Whole step counts: the same JSON as f64 or f32.
+            let (q, min, max) = position_steps(frame, p);
             let bytes = q.iter().flat_map(|v| v.map(f32::from).into_iter().flat_map(f32::to_le_bytes)).collect();
             for v in &q {
                 let e = [exp(v[0]), exp_word(v[1], 8), exp(v[2])];

@@ -28,14 +28,11 @@ struct Cost {
 }
 
 fn chunk_cost(path: &std::path::Path) -> Result<Cost> {
-    let glb = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    if glb.len() < 20 || &glb[..4] != b"glTF" {
-        bail!("{}: not a .glb", path.display());
-    }
-    let len = u32::from_le_bytes(glb[12..16].try_into().expect("4 bytes")) as usize;
-    let json: serde_json::Value = serde_json::from_slice(glb.get(20..20 + len).context("short JSON chunk")?)
-        .with_context(|| format!("{}: JSON chunk", path.display()))?;
-    let mut cost = Cost { bytes: glb.len() as u64, ..Cost::default() };
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let glb = gltf::Glb::from_slice(&bytes).with_context(|| format!("{}: not a .glb", path.display()))?;
+    let json: serde_json::Value =
+        serde_json::from_slice(&glb.json).with_context(|| format!("{}: JSON chunk", path.display()))?;
+    let mut cost = Cost { bytes: bytes.len() as u64, ..Cost::default() };
     for p in json["meshes"][0]["primitives"].as_array().into_iter().flatten() {
         let count = p["indices"].as_u64().and_then(|i| json["accessors"][i as usize]["count"].as_u64()).unwrap_or(0);
         match p["extras"]["role"].as_str() {
