@@ -49,6 +49,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         parent: None,
         max_vertices: MAX_VERTICES,
         dividing_lines: true,
+        split_insertion: false,
         cancel: None,
         cut_share: terrachunk::mesh::decimate::CUT_SHARE,
         cut_lattice: None,

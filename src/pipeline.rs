@@ -952,6 +952,7 @@ impl Run<'_> {
                 parent,
                 max_vertices: MAX_VERTICES,
                 dividing_lines: tree.splits(level),
+                split_insertion: tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS,
                 cancel: Some(&self.failed),
                 cut_share: share,
                 cut_lattice: self.ctx.quantization.as_ref().map(|q| q.shift[level as usize]),
@@ -1038,6 +1039,12 @@ impl Run<'_> {
 /// still over δ then is written as the attempt that came closest and
 /// reported (`Report::over_delta_as_written`).
 const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
+
+/// A level of fewer chunks than this (the root) fills the parts its
+/// dividing lines make in parallel (`ChunkSpec::split_insertion`): alone,
+/// its one chunk would keep every other thread waiting. The rule is the
+/// tree's, not the thread count's, so the output is the same at any count.
+const SPLIT_BELOW_CHUNKS: usize = 4;
 
 /// What a level's summary needs from one written chunk.
 struct LevelFigures {

@@ -27,7 +27,9 @@
 
 use std::cmp::Ordering;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering as AtomicOrdering};
+
+use rayon::prelude::*;
 
 use robust::Coord;
 
@@ -138,6 +140,10 @@ pub struct ChunkSpec<'p> {
     /// Add the dividing lines (the children's borders). Off only for the
     /// unconstrained single-TIN baseline the benchmarks compare against.
     pub dividing_lines: bool,
+    /// Fill the parts the dividing lines make in parallel, each a TIN of
+    /// its own (the same triangles as one TIN, numbered part by part): for
+    /// the chunks of a level too few to keep every thread busy.
+    pub split_insertion: bool,
     /// Stop early with [`MeshError::Cancelled`] once this is set (another
     /// chunk failed, so this build's work is lost anyway).
     pub cancel: Option<&'p AtomicBool>,
@@ -180,6 +186,7 @@ impl ChunkSpec<'_> {
             parent: None,
             max_vertices: usize::MAX,
             dividing_lines: false,
+            split_insertion: false,
             cancel: None,
             cut_share: CUT_SHARE,
             cut_lattice: None,
@@ -226,38 +233,71 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
     if let Some(mz) = mz {
         refine_line(&mut tin, grid, false, mz, (x0, x1), line_target, nested);
     }
-    let mut dirty = Vec::new();
-    tin.take_dirty(&mut dirty);
+    tin.take_dirty(&mut Vec::new());
 
     // Step 4: greedy insertion of interior samples.
-    let mut lines = Lines::new(&tin, spec.footprint, [Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
-    let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
+    let (xs, zs) = ([Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
+    let lines = Lines::new(&tin, spec.footprint, xs, zs);
     // A parent triangle the cuts and lines left alone holds the same samples
     // against the same plane: its last scan in the parent stands, unless its
     // worst sample now lies on a dividing line (decided in 1-D instead).
     let seeds = spec.parent.map(|p| &p.scans[..]).unwrap_or(&[]);
+    let start: Vec<Option<TriangleScan>> = (0..tin.num_triangles() as u32)
+        .map(|t| {
+            let seed = origin.get(t as usize).and_then(|&o| seeds.get(o as usize)).copied().flatten();
+            seed.filter(|s| {
+                tin.version(t) == 0 && s.worst.is_none_or(|(_, i, j)| !lines.row_is_line(i) && !lines.col_is_line(j))
+            })
+        })
+        .collect();
+    let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
+        true => insert_by_parts(grid, spec, target, &tin, &start, (mx, mz), nested)?,
+        false => {
+            let (mut tin, mut lines) = (tin, lines);
+            let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
+            insert_samples(&mut tin, spec, &mut lines, &mut queue, &start, nested, None)?;
+            (tin, lines, queue.scans)
+        }
+    };
+    Ok(finish(grid, spec, &tin, &lines, &scans, (relief, magnitude)))
+}
+
+/// Step 4 on one TIN: queues each triangle (from its `start` scan where one
+/// stands, else by scanning it), then inserts the worst sample of the worst
+/// triangle until every triangle is within its target. `shared`: the vertex
+/// count is that of a whole chunk whose parts run at once (the vertices they
+/// started from, and a counter of those all parts added).
+fn insert_samples(
+    tin: &mut Tin,
+    spec: &ChunkSpec,
+    lines: &mut Lines,
+    queue: &mut Queue,
+    start: &[Option<TriangleScan>],
+    nested: bool,
+    shared: Option<(usize, &AtomicUsize)>,
+) -> Result<(), MeshError> {
+    let grid = queue.grid;
     for t in 0..tin.num_triangles() as u32 {
-        let seed = origin.get(t as usize).and_then(|&o| seeds.get(o as usize)).copied().flatten();
-        match seed {
-            Some(s)
-                if tin.version(t) == 0
-                    && s.worst.is_none_or(|(_, i, j)| !lines.row_is_line(i) && !lines.col_is_line(j)) =>
-            {
-                queue.record(t, 0, s, target.over(&tin.corners(t)));
-            }
-            _ => queue.push(&tin, &lines, t),
+        match start[t as usize] {
+            Some(s) => queue.record(t, 0, s, queue.target.over(&tin.corners(t))),
+            None => queue.push(tin, lines, t),
         }
     }
+    let mut dirty = Vec::new();
     while let Some(c) = queue.heap.pop() {
         if lines.is_vertex(c.i, c.j) {
             // The sample became a vertex of the next triangle over (it sat on
             // this triangle's edge within rounding): rescan without it.
-            queue.push(&tin, &lines, c.t);
+            queue.push(tin, lines, c.t);
             continue;
         }
-        insert_interior(&mut tin, grid, c.t, c.j, c.i, nested);
+        insert_interior(tin, grid, c.t, c.j, c.i, nested);
         lines.mark_vertex(c.i, c.j);
-        if tin.pts.len() > spec.max_vertices {
+        let vertices = match shared {
+            None => tin.pts.len(),
+            Some((base, added)) => base + added.fetch_add(1, AtomicOrdering::Relaxed) + 1,
+        };
+        if vertices > spec.max_vertices {
             let k = spec.key;
             return Err(MeshError::TooDense {
                 level: k.level,
@@ -268,7 +308,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             });
         }
         if let Some(cancel) = spec.cancel
-            && tin.pts.len() % 1024 == 0
+            && tin.pts.len().is_multiple_of(1024)
             && cancel.load(AtomicOrdering::Relaxed)
         {
             return Err(MeshError::Cancelled);
@@ -277,13 +317,120 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         if dirty.binary_search(&c.t).is_err() {
             // Rounding put the sample just across this triangle's edge, into
             // the neighbour: this one is unchanged, so scan it again.
-            queue.push(&tin, &lines, c.t);
+            queue.push(tin, lines, c.t);
         }
         for &t in &dirty {
-            queue.push(&tin, &lines, t);
+            queue.push(tin, lines, t);
         }
     }
-    Ok(finish(grid, spec, &tin, &lines, &queue.scans, (relief, magnitude)))
+    Ok(())
+}
+
+/// One part of a chunk filled on its own ([`insert_by_parts`]).
+struct PartTin {
+    /// Its triangles, over the vertices they use (in the chunk's order).
+    tin: Tin,
+    /// Those vertices' indices in the chunk.
+    whole: Vec<u32>,
+    /// Per triangle, the parent's scan that stands for it.
+    starts: Vec<Option<TriangleScan>>,
+    /// Its footprint: the chunk's, cut at the dividing lines.
+    footprint: (Span, Span),
+    /// What the last scan of each triangle found, once filled.
+    scans: Vec<Scan>,
+}
+
+/// Step 4 with the chunk cut along its dividing lines into the parts its
+/// children will cover, each a TIN of its own, filled in parallel, then
+/// joined. The lines are fixed edges and no sample on them is inserted
+/// here, so no insertion or flip in one part touches another: each part
+/// ends as it would in one TIN of the whole chunk. Its candidates come in
+/// the same order (largest error first, ties by sample, not by triangle),
+/// so the joined mesh holds the same triangles, numbered part by part.
+/// The vertex limit counts the parts' vertices together: whether it is
+/// passed is decided by their sum, whatever the threads' pace.
+fn insert_by_parts(
+    grid: &Window,
+    spec: &ChunkSpec,
+    target: Targets,
+    tin: &Tin,
+    start: &[Option<TriangleScan>],
+    (mx, mz): (Option<u32>, Option<u32>),
+    nested: bool,
+) -> Result<(Tin, Lines, Vec<Scan>), MeshError> {
+    let ((x0, x1), (z0, z1)) = spec.footprint;
+    let n0 = tin.pts.len();
+    let beyond = |line: Option<u32>, c: f64| line.is_some_and(|m| c > f64::from(m));
+    let mut by_part: [Vec<u32>; 4] = Default::default();
+    for t in 0..tin.num_triangles() as u32 {
+        let c = tin.corners(t);
+        let (cx, cz) = ((c[0].x + c[1].x + c[2].x) / 3.0, (c[0].z + c[1].z + c[2].z) / 3.0);
+        by_part[usize::from(beyond(mx, cx)) + 2 * usize::from(beyond(mz, cz))].push(t);
+    }
+    let parts: Vec<PartTin> = by_part
+        .iter()
+        .enumerate()
+        .filter(|(_, ts)| !ts.is_empty())
+        .map(|(k, ts)| {
+            let mut local = vec![u32::MAX; n0];
+            for &t in ts {
+                for v in tin.triangle(t) {
+                    local[v as usize] = 0;
+                }
+            }
+            let whole: Vec<u32> = (0..n0 as u32).filter(|&v| local[v as usize] == 0).collect();
+            for (l, &v) in whole.iter().enumerate() {
+                local[v as usize] = l as u32;
+            }
+            let pts = whole.iter().map(|&v| tin.pts[v as usize]).collect();
+            let tris: Vec<[u32; 3]> = ts.iter().map(|&t| tin.triangle(t).map(|v| local[v as usize])).collect();
+            let fixed: Vec<[bool; 3]> = ts.iter().map(|&t| [0, 1, 2].map(|e| tin.is_fixed(3 * t + e))).collect();
+            let starts = ts.iter().map(|&t| start[t as usize]).collect();
+            let span = |lo: u32, mid: Option<u32>, hi: u32, far: bool| match (mid, far) {
+                (Some(m), false) => (lo, m),
+                (Some(m), true) => (m, hi),
+                (None, _) => (lo, hi),
+            };
+            let footprint = (span(x0, mx, x1, k % 2 == 1), span(z0, mz, z1, k >= 2));
+            PartTin { tin: Tin::from_soup(pts, &tris, &fixed), whole, starts, footprint, scans: Vec::new() }
+        })
+        .collect();
+    let added = AtomicUsize::new(0);
+    let (xs, zs) = ([Some(x0), mx, Some(x1)], [Some(z0), mz, Some(z1)]);
+    let filled: Vec<Result<PartTin, MeshError>> = parts
+        .into_par_iter()
+        .map(|mut part| {
+            let mut lines = Lines::new(&part.tin, part.footprint, xs, zs);
+            let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
+            insert_samples(&mut part.tin, spec, &mut lines, &mut queue, &part.starts, nested, Some((n0, &added)))?;
+            part.scans = queue.scans;
+            Ok(part)
+        })
+        .collect();
+    // Join: the chunk's vertices so far, then each part's new ones in turn.
+    let mut pts = tin.pts.clone();
+    let (mut tris, mut fixed, mut scans) = (Vec::new(), Vec::new(), Vec::new());
+    for part in filled {
+        let PartTin { tin: sub, scans: sub_scans, whole, .. } = part?;
+        let (shared, first_new) = (whole.len(), pts.len());
+        pts.extend_from_slice(&sub.pts[shared..]);
+        let id =
+            |v: u32| if (v as usize) < shared { whole[v as usize] } else { (first_new + v as usize - shared) as u32 };
+        for t in 0..sub.num_triangles() as u32 {
+            tris.push(sub.triangle(t).map(id));
+            fixed.push([0, 1, 2].map(|e| sub.is_fixed(3 * t + e)));
+            // A scan of the triangle as it ended stands (the joined TIN
+            // starts every triangle at version 0).
+            let stands = sub_scans.get(t as usize).filter(|s| s.version == sub.version(t));
+            scans.push(match stands {
+                Some(s) => Scan { version: 0, found: s.found },
+                None => Scan { version: u32::MAX, found: TriangleScan { max_err: 0.0, coverage: None, worst: None } },
+            });
+        }
+    }
+    let joined = Tin::from_soup(pts, &tris, &fixed);
+    let lines = Lines::new(&joined, spec.footprint, xs, zs);
+    Ok((joined, lines, scans))
 }
 
 /// The error a sample may keep, by what can move the surface over it once
@@ -1250,6 +1397,82 @@ fn finish(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rough ground: two ridges and a hashed roughness of a few metres.
+    fn rough(w: usize, h: usize) -> Vec<f32> {
+        (0..w * h)
+            .map(|k| {
+                let (x, z) = ((k % w) as f64, (k / w) as f64);
+                let hash = ((k as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40) as f64 / f64::from(1u32 << 24);
+                (40.0 * (x / 9.0).sin() * (z / 13.0).cos() + 0.3 * x + 3.0 * hash) as f32
+            })
+            .collect()
+    }
+
+    /// Each triangle as its corners' coordinates, sorted: a mesh's
+    /// triangles whatever their numbering.
+    fn triangle_set(m: &ChunkMesh) -> Vec<[[u64; 3]; 3]> {
+        let mut set: Vec<[[u64; 3]; 3]> = m
+            .triangles
+            .iter()
+            .map(|t| {
+                let mut c = t.map(|v| {
+                    let p = m.vertices[v as usize];
+                    [p.x.to_bits(), p.z.to_bits(), p.h.to_bits()]
+                });
+                c.sort_unstable();
+                c
+            })
+            .collect();
+        set.sort_unstable();
+        set
+    }
+
+    #[test]
+    fn parts_filled_in_parallel_make_the_same_mesh_as_one_tin() {
+        let (w, h) = (129, 97);
+        let heights = rough(w, h);
+        let grid = Grid::new(w, h, &heights, None);
+        let spec = |key, footprint, delta_m, parent, split| ChunkSpec {
+            key,
+            footprint,
+            delta_m,
+            parent,
+            max_vertices: MAX_VERTICES,
+            dividing_lines: true,
+            split_insertion: split,
+            cancel: None,
+            cut_share: CUT_SHARE,
+            cut_lattice: None,
+            height_step: None,
+        };
+        let root = ChunkKey { level: 0, x: 0, y: 0 };
+        let whole = ((0, 128), (0, 96));
+        let [one, parts] = [false, true].map(|split| build_chunk(&grid, &spec(root, whole, 2.0, None, split)).unwrap());
+        assert!(one.triangles.len() > 1000, "{} triangles", one.triangles.len());
+        assert_eq!(triangle_set(&one), triangle_set(&parts));
+        assert_eq!(one.vertices.len(), parts.vertices.len());
+        assert_eq!(one.max_error_m, parts.max_error_m);
+        // The scans each hands down stand for the same triangles: a child of
+        // either is the same mesh, and so is a child filled in parts.
+        let child = ChunkKey { level: 1, x: 1, y: 0 };
+        let quarter = ((64, 128), (0, 48));
+        let a = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&one), false)).unwrap();
+        let b = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&parts), false)).unwrap();
+        let c = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&parts), true)).unwrap();
+        assert_eq!(triangle_set(&a), triangle_set(&b));
+        assert_eq!(triangle_set(&a), triangle_set(&c));
+        let held = |m: &ChunkMesh| m.scans.iter().filter(|s| s.is_some()).count();
+        assert_eq!(held(&one), held(&parts));
+        // The vertex limit counts the parts together.
+        let limit = one.vertices.len() - 1;
+        for split in [false, true] {
+            let tight = ChunkSpec { max_vertices: limit, ..spec(root, whole, 2.0, None, split) };
+            assert!(matches!(build_chunk(&grid, &tight), Err(MeshError::TooDense { .. })), "split {split}");
+            let exact = ChunkSpec { max_vertices: limit + 1, ..spec(root, whole, 2.0, None, split) };
+            assert!(build_chunk(&grid, &exact).is_ok(), "split {split}");
+        }
+    }
 
     /// A fan of parent edges around a vertex a thousandth of a cell from the
     /// dividing line crosses it at points closer together than the quantize
