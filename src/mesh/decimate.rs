@@ -20,6 +20,9 @@
 //!    border without talking.
 //! 4. Insert the interior sample with the largest error until every valid
 //!    sample is within δ (samples on the lines of steps 2–3 never move).
+//!    No insertion or flip crosses a dividing line, so the parts the lines
+//!    make can be filled as TINs of their own and joined, with the same
+//!    triangles: the root does so in parallel ([`ChunkSpec::split_insertion`]).
 //!
 //! Decisions are made in f64 grid coordinates; next to cut points the
 //! target is shrunk by a margin that covers the rounding of the written

@@ -127,11 +127,36 @@ static SRGB_STEPS: LazyLock<[f32; 255]> = LazyLock::new(|| {
     })
 });
 
-/// Linear light → sRGB byte, rounded to nearest (inverse of
-/// [`SRGB_TO_LINEAR`]): a binary search of the 255 steps, not a power per
-/// value.
-pub fn linear_to_srgb(v: f32) -> u8 {
+/// Buckets of the non-negative f32 below 2, by their top 16 bits.
+const SRGB_BUCKETS: usize = (2.0f32.to_bits() >> 16) as usize;
+
+/// Per bucket, the byte of its smallest value: where [`linear_to_srgb`]
+/// starts among the steps (a bucket spans at most two of them).
+static SRGB_START: LazyLock<Vec<u8>> =
+    LazyLock::new(|| (0..SRGB_BUCKETS).map(|b| slow_linear_to_srgb(f32::from_bits((b as u32) << 16))).collect());
+
+/// The byte as the count of steps at or below `v` (NaN: 0).
+fn slow_linear_to_srgb(v: f32) -> u8 {
     SRGB_STEPS.partition_point(|&t| t <= v) as u8
+}
+
+/// Linear light → sRGB byte, rounded to nearest (inverse of
+/// [`SRGB_TO_LINEAR`]): the count of steps at or below `v`, not a power per
+/// value, found from the byte of `v`'s bucket (top 16 bits) in a step or
+/// two; the same count a binary search of all 255 gives (tested), at a
+/// fraction of its cost (it was 3 % of a textured Fuji build).
+pub fn linear_to_srgb(v: f32) -> u8 {
+    let b = (v.to_bits() >> 16) as usize;
+    if b >= SRGB_BUCKETS {
+        // Negative, 2 or more, or NaN.
+        return slow_linear_to_srgb(v);
+    }
+    let steps = &*SRGB_STEPS;
+    let mut k = SRGB_START[b] as usize;
+    while k < steps.len() && steps[k] <= v {
+        k += 1;
+    }
+    k as u8
 }
 
 #[cfg(test)]
@@ -155,6 +180,22 @@ mod tests {
                 out[(j - j0) * 2] = j as f32;
                 out[(j - j0) * 2 + 1] = i as f32;
             }
+        }
+    }
+
+    #[test]
+    fn srgb_by_bucket_counts_the_steps_as_a_binary_search_does() {
+        let mut values = vec![-1.0f32, -0.0, 0.0, 1.0, 2.0, 1e30, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        // Every step and its neighbours a few ulps either side.
+        for &t in SRGB_STEPS.iter() {
+            for d in -4i32..=4 {
+                values.push(f32::from_bits(t.to_bits().wrapping_add_signed(d)));
+            }
+        }
+        // A walk over every bucket (and past the last) in odd strides.
+        values.extend((0..(SRGB_BUCKETS as u32 + 8) << 16).step_by(4099).map(f32::from_bits));
+        for v in values {
+            assert_eq!(linear_to_srgb(v), slow_linear_to_srgb(v), "{v:e}");
         }
     }
 
