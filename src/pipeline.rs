@@ -792,6 +792,13 @@ fn is_cancel(e: &BuildError) -> bool {
     matches!(e, BuildError::Mesh(MeshError::Cancelled))
 }
 
+/// The first error in `results` that is not a cancellation (which another
+/// chunk's failure caused), taken out.
+fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError> {
+    let k = results.iter().position(|r| r.as_ref().is_err_and(|e| !is_cancel(e)))?;
+    results.swap_remove(k).err()
+}
+
 /// The most chunks a level may have to be built level-first
 /// ([`Run::all_chunks`]): at most this many meshes of up to 65 535 vertices
 /// are kept at once, about 150 MB.
@@ -807,6 +814,15 @@ struct BuiltChunk {
     remeshed: bool,
     over_delta_m: Option<f64>,
     /// No children: already within max_error, or at the deepest level.
+    leaf: bool,
+}
+
+/// A chunk meshed and assembled, not yet written.
+struct Meshed {
+    chunk: Chunk,
+    remeshed: bool,
+    over_delta_m: Option<f64>,
+    max_error_m: f64,
     leaf: bool,
 }
 
@@ -855,37 +871,58 @@ impl Run<'_> {
         // (parent mesh, its children to build)
         let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
             vec![(None, tree.roots().into_iter().filter(|&k| self.worth_building(k)).collect())];
+        // A level's chunks are textured and written while the next level is
+        // meshed: its meshes are all the next level needs (the root alone
+        // would otherwise keep the other threads waiting while it writes).
+        let mut unwritten: Vec<Meshed> = Vec::new();
+        let write_all = |unwritten: Vec<Meshed>| -> Vec<Result<BuiltChunk, BuildError>> {
+            unwritten.into_par_iter().map(|m| self.write_chunk(m).inspect_err(|_| self.fail())).collect()
+        };
         for _ in 0..level_first {
             let jobs: Vec<(Option<&ChunkMesh>, ChunkKey)> =
                 frontier.iter().flat_map(|(p, kids)| kids.iter().map(move |&k| (p.as_ref(), k))).collect();
-            let level: Vec<Result<(ChunkMesh, BuiltChunk), BuildError>> =
-                jobs.par_iter().map(|&(p, k)| self.chunk(k, p).inspect_err(|_| self.fail())).collect();
+            let (mut written, mut level) = rayon::join(
+                || write_all(std::mem::take(&mut unwritten)),
+                || -> Vec<Result<(ChunkMesh, Meshed), BuildError>> {
+                    jobs.par_iter().map(|&(p, k)| self.mesh_chunk(k, p).inspect_err(|_| self.fail())).collect()
+                },
+            );
             // The error to report is one that is not a cancellation it caused.
-            if let Some(e) = level.iter().position(|r| r.as_ref().is_err_and(|e| !is_cancel(e))) {
-                return Err(level.into_iter().nth(e).and_then(Result::err).expect("an error"));
+            if let Some(e) = take_error(&mut written).or_else(|| take_error(&mut level)) {
+                return Err(e);
             }
+            done.extend(written.into_iter().map(|r| r.expect("no error above")));
             frontier = level
                 .into_iter()
                 .map(|r| {
-                    let (mesh, built) = r.expect("no error above");
-                    let kids = self.kids(&built);
-                    done.push(built);
+                    let (mesh, meshed) = r.expect("no error above");
+                    let kids = self.kids(meshed.chunk.key, meshed.leaf);
+                    unwritten.push(meshed);
                     (Some(mesh), kids)
                 })
                 .collect();
         }
-        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> = frontier
-            .into_par_iter()
-            .map(|(mesh, kids)| {
-                let mut all = Vec::new();
-                for b in kids.par_iter().map(|&k| self.subtree(k, mesh.as_ref())).collect::<Vec<_>>() {
-                    all.extend(b?);
-                }
-                Ok(all)
-            })
-            .collect();
+        let (mut written, mut below) = rayon::join(
+            || write_all(unwritten),
+            || -> Vec<Result<Vec<BuiltChunk>, BuildError>> {
+                frontier
+                    .into_par_iter()
+                    .map(|(mesh, kids)| {
+                        let mut all = Vec::new();
+                        for b in kids.par_iter().map(|&k| self.subtree(k, mesh.as_ref())).collect::<Vec<_>>() {
+                            all.extend(b?);
+                        }
+                        Ok(all)
+                    })
+                    .collect()
+            },
+        );
+        if let Some(e) = take_error(&mut written).or_else(|| take_error(&mut below)) {
+            return Err(e);
+        }
+        done.extend(written.into_iter().map(|r| r.expect("no error above")));
         for b in below {
-            done.extend(b?);
+            done.extend(b.expect("no error above"));
         }
         Ok(done)
     }
@@ -895,11 +932,11 @@ impl Run<'_> {
         self.failed.store(true, Ordering::Relaxed);
     }
 
-    /// The children of a built chunk that are worth building.
-    fn kids(&self, built: &BuiltChunk) -> Vec<ChunkKey> {
-        match built.leaf {
+    /// The children of a chunk that are worth building.
+    fn kids(&self, key: ChunkKey, leaf: bool) -> Vec<ChunkKey> {
+        match leaf {
             true => Vec::new(),
-            false => self.tree.children(built.record.key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
         }
     }
 
@@ -917,7 +954,7 @@ impl Run<'_> {
                 return Err(e);
             }
         };
-        let kids = self.kids(&built);
+        let kids = self.kids(built.record.key, built.leaf);
         let mut all = vec![built];
         let below: Vec<Result<Vec<BuiltChunk>, BuildError>> =
             kids.par_iter().map(|&k| self.subtree(k, Some(&mesh))).collect();
@@ -930,6 +967,13 @@ impl Run<'_> {
 
     /// Meshes, assembles, textures and writes one chunk.
     fn chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, BuiltChunk), BuildError> {
+        let (mesh, meshed) = self.mesh_chunk(key, parent)?;
+        Ok((mesh, self.write_chunk(meshed)?))
+    }
+
+    /// Meshes and assembles one chunk: what its children need (the mesh)
+    /// and what is left to write.
+    fn mesh_chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, Meshed), BuildError> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
         let delta = tree.delta_m[level as usize];
@@ -992,6 +1036,17 @@ impl Run<'_> {
                 closest = Some((written, mesh, chunk));
             }
         };
+        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
+        let leaf = stops || tree.children(key).is_empty();
+        let max_error_m = mesh.max_error_m;
+        Ok((mesh, Meshed { chunk, remeshed, over_delta_m, max_error_m, leaf }))
+    }
+
+    /// Textures and writes a meshed chunk.
+    fn write_chunk(&self, meshed: Meshed) -> Result<BuiltChunk, BuildError> {
+        let Meshed { chunk, remeshed, over_delta_m, max_error_m, leaf } = meshed;
+        let (key, delta) = (chunk.key, chunk.delta_m);
+        let timers = &self.timers;
         let t = Instant::now();
         let texture = self.texturer.map(|tx| tx.tile(key)).transpose()?;
         Timers::add(&timers.texture, t);
@@ -1017,18 +1072,14 @@ impl Run<'_> {
                 bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
             }),
         };
-        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
-        let leaf = stops || tree.children(key).is_empty();
-        let max_error_m = mesh.max_error_m;
-        let built = BuiltChunk {
+        Ok(BuiltChunk {
             record: TileRecord { key, min, max, delta_m: delta },
             figures,
             max_error_m,
             remeshed,
             over_delta_m,
             leaf,
-        };
-        Ok((mesh, built))
+        })
     }
 }
 
