@@ -1175,6 +1175,9 @@ impl Queue<'_> {
             {
                 worst = Some((err, i, j));
             }
+            // A sample no further off than the worst so far (and so than
+            // `max_err`, never below it) changes neither.
+            worst.map_or(f64::NEG_INFINITY, |w| w.0)
         });
         let target = self.target.over(&tri);
         self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, target);
@@ -1194,13 +1197,19 @@ impl Queue<'_> {
 }
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
-/// triangle `tri` (clipped to `clip`); returns whether any valid sample was
-/// what it covers, or `None` for a zero-area triangle (which is not scanned).
+/// triangle `tri` (clipped to `clip`) that can matter; returns whether any
+/// valid sample was what it covers, or `None` for a zero-area triangle
+/// (which is not scanned).
+///
+/// `visit` returns a floor: a sample no further off than it cannot change
+/// what `visit` finds, and is not visited (`NEG_INFINITY`: every valid
+/// sample counts). Once the worst is known, most samples cost one
+/// comparison, and a nodata sample (NaN) fails it too.
 fn scan_triangle(
     grid: &Window,
     clip: (Span, Span),
     tri: &[V; 3],
-    mut visit: impl FnMut(u32, u32, f64),
+    mut visit: impl FnMut(u32, u32, f64) -> f64,
 ) -> Option<Coverage> {
     let [a, b, c] = tri.map(|v| (v.x, v.z, v.h));
     let det = (b.0 - a.0) * (c.1 - a.1) - (c.0 - a.0) * (b.1 - a.1);
@@ -1214,9 +1223,10 @@ fn scan_triangle(
     let zmin = a.1.min(b.1).min(c.1).max(f64::from(clip.1.0));
     let zmax = a.1.max(b.1).max(c.1).min(f64::from(clip.1.1));
     let first = ceil(zmin - EPS);
-    let last = floor(zmax + EPS);
+    let last = floor_i64(zmax + EPS);
     let mut any = false;
     let mut seen = false;
+    let mut floor = f64::NEG_INFINITY;
     // Corners by row: p on top, r at the bottom; the long edge p–r spans
     // every row, the short edges p–q and q–r one part each.
     let mut v = [a, b, c];
@@ -1232,20 +1242,23 @@ fn scan_triangle(
         let x_short = if zc < q.1 { p.0 + (zc - p.1) * upper } else { q.0 + (zc - q.1) * lower };
         let (xl, xr) = if x_long <= x_short { (x_long, x_short) } else { (x_short, x_long) };
         let j0 = ceil(xl - EPS).max(i64::from(clip.0.0));
-        let j1 = floor(xr + EPS).min(i64::from(clip.0.1));
+        let j1 = floor_i64(xr + EPS).min(i64::from(clip.0.1));
         let row = grid.row(i as usize);
         // Relative to corner a: far from the grid's origin on steep ground,
         // gx·j and gx·a.x would each be large and their difference rounded.
         let base = a.2 + gz * (z - a.1);
-        for j in j0..=j1 {
-            seen = true;
-            let h = row[j as usize - grid.x0];
-            if h.is_nan() {
-                continue;
-            }
-            any = true;
+        if j0 > j1 {
+            continue;
+        }
+        seen = true;
+        for (j, &h) in (j0..=j1).zip(&row[j0 as usize - grid.x0..=j1 as usize - grid.x0]) {
             let err = (f64::from(h) - (base + gx * (j as f64 - a.0))).abs();
-            visit(i as u32, j as u32, err);
+            // A valid sample is visited at least until the floor is finite,
+            // so `any` is set by then.
+            if err > floor {
+                any = true;
+                floor = visit(i as u32, j as u32, err);
+            }
         }
     }
     Some(match (seen, any) {
@@ -1265,7 +1278,7 @@ fn ceil(x: f64) -> i64 {
 
 /// `x.floor() as i64`, as [`ceil`].
 #[inline]
-fn floor(x: f64) -> i64 {
+fn floor_i64(x: f64) -> i64 {
     let t = x as i64;
     if (t as f64) > x { t - 1 } else { t }
 }
@@ -1344,12 +1357,12 @@ fn finish(
                 // corner weighs nothing). It counts in the lattice class,
                 // whose δ reading is snapped.
                 scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
-                    if lines.is_vertex(i, j) {
-                        return;
+                    if !lines.is_vertex(i, j) {
+                        let on_line = lines.row_is_line(i) || lines.col_is_line(j);
+                        let class = if rounds && !on_line { &mut max_err_cut } else { &mut max_err };
+                        *class = class.max(if rounded { e + moved(i, j) } else { e });
                     }
-                    let on_line = lines.row_is_line(i) || lines.col_is_line(j);
-                    let class = if rounds && !on_line { &mut max_err_cut } else { &mut max_err };
-                    *class = class.max(if rounded { e + moved(i, j) } else { e });
+                    f64::NEG_INFINITY // every sample counts
                 })
             }
         };
