@@ -366,7 +366,15 @@ impl Tin {
         if let Some(k) = (0..3).find(|&k| o[k] < 0.0) {
             return Err(e + k as u32);
         }
-        match (0..3).filter(|&k| o[k] == 0.0).collect::<Vec<_>>()[..] {
+        // The edges `p` lies on, in order (no allocation: this runs once or
+        // more per inserted vertex).
+        let mut on = [0usize; 3];
+        let mut n = 0;
+        for k in (0..3).filter(|&k| o[k] == 0.0) {
+            on[n] = k;
+            n += 1;
+        }
+        match on[..n] {
             [] => Ok(Position::Face(t)),
             [k] => Ok(Position::Edge(e + k as u32)),
             [k, l] => {
