@@ -254,7 +254,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
         })
         .collect();
     let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
-        true => insert_by_parts(grid, spec, target, &tin, &start, (mx, mz), nested)?,
+        true => insert_by_parts(grid, spec, target, &tin, lines, &start, (mx, mz))?,
         false => {
             let (mut tin, mut lines) = (tin, lines);
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
@@ -357,10 +357,11 @@ fn insert_by_parts(
     spec: &ChunkSpec,
     target: Targets,
     tin: &Tin,
+    mut lines: Lines,
     start: &[Option<TriangleScan>],
     (mx, mz): (Option<u32>, Option<u32>),
-    nested: bool,
 ) -> Result<(Tin, Lines, Vec<Scan>), MeshError> {
+    let nested = spec.parent.is_some();
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let n0 = tin.pts.len();
     let beyond = |line: Option<u32>, c: f64| line.is_some_and(|m| c > f64::from(m));
@@ -375,13 +376,14 @@ fn insert_by_parts(
         .enumerate()
         .filter(|(_, ts)| !ts.is_empty())
         .map(|(k, ts)| {
-            let mut local = vec![u32::MAX; n0];
+            let mut used = vec![false; n0];
             for &t in ts {
                 for v in tin.triangle(t) {
-                    local[v as usize] = 0;
+                    used[v as usize] = true;
                 }
             }
-            let whole: Vec<u32> = (0..n0 as u32).filter(|&v| local[v as usize] == 0).collect();
+            let whole: Vec<u32> = (0..n0 as u32).filter(|&v| used[v as usize]).collect();
+            let mut local = vec![u32::MAX; n0];
             for (l, &v) in whole.iter().enumerate() {
                 local[v as usize] = l as u32;
             }
@@ -417,6 +419,10 @@ fn insert_by_parts(
         let PartTin { tin: sub, scans: sub_scans, whole, .. } = part?;
         let (shared, first_new) = (whole.len(), pts.len());
         pts.extend_from_slice(&sub.pts[shared..]);
+        // The samples the part inserted are vertices of the whole now.
+        for p in &sub.pts[shared..] {
+            lines.mark_vertex(p.z as u32, p.x as u32);
+        }
         let id =
             |v: u32| if (v as usize) < shared { whole[v as usize] } else { (first_new + v as usize - shared) as u32 };
         for t in 0..sub.num_triangles() as u32 {
@@ -431,9 +437,7 @@ fn insert_by_parts(
             });
         }
     }
-    let joined = Tin::from_soup(pts, &tris, &fixed);
-    let lines = Lines::new(&joined, spec.footprint, xs, zs);
-    Ok((joined, lines, scans))
+    Ok((Tin::from_soup(pts, &tris, &fixed), lines, scans))
 }
 
 /// The error a sample may keep, by what can move the surface over it once
