@@ -35,6 +35,9 @@ pub struct Chunk {
     pub max_error_m: f64,
     /// The terrain surface.
     pub surface: Part,
+    /// Its vertices' grid coordinates (column, row), exact: a cut point's
+    /// place on its dividing line, which the metres of `positions` round.
+    pub surface_grid: Vec<(f64, f64)>,
     /// Vertical strips under the borders (may be empty).
     pub skirt: Part,
 }

@@ -559,13 +559,18 @@ fn print_summary(r: &Report, out: &std::path::Path) {
     let s = &r.seconds;
     println!("{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display());
     println!(
-        "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
+        "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, {}texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
         s.load,
         s.plan,
         s.texture_source,
         s.chunks,
         r.thread_seconds.mesh,
         r.thread_seconds.skirt_morph,
+        if r.thread_seconds.check > 0.0 {
+            format!("as-written check {:.2}, ", r.thread_seconds.check)
+        } else {
+            String::new()
+        },
         r.thread_seconds.texture,
         r.thread_seconds.write,
         s.index,

@@ -259,6 +259,9 @@ pub struct ChunkStageTimes {
     pub mesh: f64,
     /// Normals, morph targets and skirts.
     pub skirt_morph: f64,
+    /// Quantized output only: each chunk measured again as it will be
+    /// written ([`crate::output::compress::Quantization::cut_error`]).
+    pub check: f64,
     /// Resampling and encoding texture tiles.
     pub texture: f64,
     /// glTF encoding and file writes.
@@ -679,6 +682,7 @@ impl Density {
 struct Timers {
     mesh: AtomicU64,
     skirt_morph: AtomicU64,
+    check: AtomicU64,
     texture: AtomicU64,
     write: AtomicU64,
 }
@@ -721,6 +725,7 @@ fn build_levels(
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
+            check: AtomicU64::new(0),
             texture: AtomicU64::new(0),
             write: AtomicU64::new(0),
         },
@@ -781,6 +786,7 @@ fn build_levels(
     report.thread_seconds = ChunkStageTimes {
         mesh: s(&t.mesh),
         skirt_morph: s(&t.skirt_morph),
+        check: s(&t.check),
         texture: s(&t.texture),
         write: s(&t.write),
     };
@@ -1022,13 +1028,15 @@ impl Run<'_> {
             let Some(q) = self.ctx.quantization else { break (mesh, chunk, false, None) };
             // Within f64 rounding of δ is δ, as `verify` takes it (a sample
             // exactly δ off, which the mesher leaves out, reads a few ulps over).
-            let written = q.cut_error(&chunk, grid)?;
+            let t = Instant::now();
             let (lo, hi) = chunk
                 .surface
                 .positions
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])));
             let slack = if lo > hi { 0.0 } else { 256.0 * f64::EPSILON * (lo.abs().max(hi.abs()) + (hi - lo)) };
+            let written = q.cut_error(&chunk, grid, delta + slack)?;
+            Timers::add(&timers.check, t);
             if written <= delta + slack {
                 break (mesh, chunk, share != CUT_SHARE, None);
             }
@@ -1147,6 +1155,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64)
         delta_m: mesh.delta_m,
         max_error_m: mesh.max_error_m,
         surface,
+        surface_grid: grid_xz,
         skirt,
     }
 }

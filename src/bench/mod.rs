@@ -255,6 +255,10 @@ pub struct ChildThreadSeconds {
     pub mesh: f64,
     /// Normals, morph targets, skirts.
     pub skirt_morph: f64,
+    /// Quantized output's as-written check (counted with meshing, whose
+    /// loop it closes; absent from older reports).
+    #[serde(default)]
+    pub check: f64,
     /// Encoding and writing.
     pub write: f64,
 }
@@ -266,9 +270,9 @@ impl ChildReport {
     pub fn stage_seconds(&self) -> [f64; 7] {
         let s = &self.seconds;
         let t = &self.thread_seconds;
-        let sum = t.mesh + t.skirt_morph + t.write;
+        let sum = t.mesh + t.check + t.skirt_morph + t.write;
         let share = |x: f64| if sum > 0.0 { s.chunks * x / sum } else { 0.0 };
-        [s.load, s.plan, share(t.mesh), share(t.skirt_morph), share(t.write), s.index, s.total]
+        [s.load, s.plan, share(t.mesh + t.check), share(t.skirt_morph), share(t.write), s.index, s.total]
     }
 }
 

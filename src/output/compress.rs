@@ -220,20 +220,25 @@ impl Quantization {
     }
 
     /// The largest |surface − sample| over the samples under `chunk`'s
-    /// triangles that have a cut-point corner, with every corner where the
-    /// written file puts it: heights on the grid (which the mesher's
-    /// targets leave room for) and a cut point, off the sample grid, moved
+    /// triangles that have a cut-point corner the file moves sideways, with
+    /// every corner where the written file puts it: heights on the grid
+    /// (which the mesher's targets leave room for) and a cut point, off the
+    /// sample grid and left off the quantize grid by the mesher, moved
     /// along its dividing line to the nearest step. Half a step (1/512 of a cell in a 250-cell
     /// chunk) on a steep triangle can tilt it by more than the mesher's
     /// margin next to cut points (Provence at 1 m, Verdon gorge: 8.058 m in
     /// a chunk of δ 8 m), which is what this finds. Triangles without a cut
     /// corner only move vertically, within what their targets left room for.
-    pub fn cut_error(&self, chunk: &Chunk, grid: &Grid) -> Result<f64, QuantizeError> {
+    ///
+    /// Exact where it is over `within` (the error the caller accepts);
+    /// otherwise some value no larger than `within`, so the two compare
+    /// alike either way. Only the samples over `within` among the cut-point
+    /// triangles' are looked for under their neighbours (usually none):
+    /// a neighbour can only lower a sample's error.
+    pub fn cut_error(&self, chunk: &Chunk, grid: &Grid, within: f64) -> Result<f64, QuantizeError> {
         let frame = self.frame(chunk)?;
-        let s = self.spacing_m;
         let whole = |c: f64| c == c.round();
         let surface = &chunk.surface;
-        let cut: Vec<bool> = surface.positions.iter().map(|p| !whole(p[0] / s[0]) || !whole(p[2] / s[1])).collect();
         let written: Vec<MeshVertex> = surface
             .positions
             .iter()
@@ -246,6 +251,16 @@ impl Quantization {
                 let [x, z] = [0, 2].map(|a| frame.corner[a / 2] + f64::from(q[a]) / frame.k);
                 MeshVertex { x, z, h, ph: h }
             })
+            .collect();
+        // A cut point (off the sample grid) the file moves sideways: one the
+        // mesher left off the quantize grid. One it placed on that grid
+        // (nearly all) moves only vertically, like a sample, within what
+        // its triangles' targets left room for.
+        let cut: Vec<bool> = chunk
+            .surface_grid
+            .iter()
+            .zip(&written)
+            .map(|(&(x, z), w)| (!whole(x) || !whole(z)) && (w.x != x || w.z != z))
             .collect();
         // Each sample's error is its best fit among the written triangles
         // over it, as `verify` takes it: where a cut point moves across a
@@ -265,20 +280,60 @@ impl Quantization {
         // The cut-point triangles' samples, each with its best fit among
         // them (sorted by sample, one entry each), then improved by the
         // triangles next to them.
+        // Usually every sample is within `within` under every cut-point
+        // triangle over it: one pass says so and stores nothing.
+        let (mut over, mut low) = (false, 0.0f64);
+        for t in triangles.iter().filter(|t| is_cut(t)) {
+            near_samples(
+                grid,
+                &t.map(|i| written[i]),
+                |_| true,
+                |_, e| match e > within {
+                    true => over = true,
+                    false => low = low.max(e),
+                },
+            );
+        }
+        if !over {
+            return Ok(low);
+        }
         let mut best: Vec<(usize, f64)> = Vec::new();
         for t in triangles.iter().filter(|t| is_cut(t)) {
-            near_samples(grid, &t.map(|i| written[i]), |k, e| best.push((k, e)));
+            near_samples(grid, &t.map(|i| written[i]), |_| true, |k, e| best.push((k, e)));
         }
         best.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
         best.dedup_by_key(|b| b.0);
+        let low = best.iter().map(|b| b.1).filter(|&e| e <= within).fold(0.0, f64::max);
+        best.retain(|b| b.1 > within);
+        if best.is_empty() {
+            return Ok(low);
+        }
+        // Which samples those are, by bit over their bounding box: most
+        // samples the neighbours cover are not among them, and a bit is
+        // cheaper than the plane's distance or a search.
+        let (w, mut lo, mut hi) = (grid.width, [usize::MAX; 2], [0usize; 2]);
+        for &(k, _) in &best {
+            let (i, j) = (k / w, k % w);
+            (lo, hi) = ([lo[0].min(i), lo[1].min(j)], [hi[0].max(i), hi[1].max(j)]);
+        }
+        let bw = (hi[1] + 1).saturating_sub(lo[1]);
+        let bit = |k: usize| {
+            let (i, j) = (k / w, k % w);
+            (i >= lo[0] && i <= hi[0] && j >= lo[1] && j <= hi[1]).then(|| (i - lo[0]) * bw + (j - lo[1]))
+        };
+        let mut marked = vec![0u64; (bw * (hi[0] + 1).saturating_sub(lo[0])).div_ceil(64)];
+        for b in best.iter().filter_map(|&(k, _)| bit(k)) {
+            marked[b / 64] |= 1 << (b % 64);
+        }
+        let wanted = |k: usize| bit(k).is_some_and(|b| marked[b / 64] & (1 << (b % 64)) != 0);
         for t in triangles.iter().filter(|t| !is_cut(t) && t.iter().any(|&i| near[i])) {
-            near_samples(grid, &t.map(|i| written[i]), |k, e| {
+            near_samples(grid, &t.map(|i| written[i]), wanted, |k, e| {
                 if let Ok(at) = best.binary_search_by_key(&k, |b| b.0) {
                     best[at].1 = best[at].1.min(e);
                 }
             });
         }
-        Ok(best.iter().map(|b| b.1).fold(0.0, f64::max))
+        Ok(best.iter().map(|b| b.1).fold(low, f64::max))
     }
 
     /// The grid of one chunk: where its integers start and their step.
@@ -1243,14 +1298,15 @@ fn read_accessor(
 const UNDER_CELLS: f64 = 1e-4;
 
 /// Visits each valid sample within [`UNDER_CELLS`] of triangle `tri` (grid
-/// coordinates) with its index in the grid and |plane − sample|.
+/// coordinates) that `want`s its index in the grid, with that index and
+/// |plane − sample|.
 ///
 /// Row by row over the triangle's own span on that row (widened by the
 /// tolerance and a margin for rounding), not its bounding box: a cut-point
 /// triangle is often a sliver along its dividing line, whose box is mostly
 /// empty, and every sample off the triangle cost three distances to its
 /// edges. Which samples count is still `barycentric`'s call, as before.
-fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], mut visit: impl FnMut(usize, f64)) {
+fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], want: impl Fn(usize) -> bool, mut visit: impl FnMut(usize, f64)) {
     let [a, b, d] = tri;
     let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
     let rows = (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((grid.height - 1) as f64) as usize);
@@ -1286,12 +1342,16 @@ fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], mut visit: impl FnMut(usize,
             continue;
         }
         for j in j0 as usize..=j1 as usize {
+            let k = i * grid.width + j;
+            if !want(k) {
+                continue;
+            }
             let (outside, h) = barycentric(a, b, d, j as f64, z);
-            let sample = grid.heights[i * grid.width + j];
+            let sample = grid.heights[k];
             if outside > UNDER_CELLS || sample.is_nan() {
                 continue;
             }
-            visit(i * grid.width + j, (h - f64::from(sample)).abs());
+            visit(k, (h - f64::from(sample)).abs());
         }
     }
 }
@@ -1364,12 +1424,97 @@ mod tests {
                 }),
             };
             let mut rows = Vec::new();
-            near_samples(&grid, &tri, |k, e| rows.push((k, e)));
+            near_samples(&grid, &tri, |_| true, |k, e| rows.push((k, e)));
             let boxed = box_scan(&tri);
             assert_eq!(rows, boxed, "triangle {n}: {tri:?}");
             visited += boxed.len();
         }
         assert!(visited > 10_000, "the triangles covered samples ({visited})");
+    }
+
+    /// `cut_error` with an acceptable error: exact wherever the chunk is
+    /// over it, at most it where the chunk is within it, so the caller's
+    /// comparison comes out as it would on the exact value. Measured on the
+    /// children and grandchildren of a steep, rough grid whose cut points
+    /// were left where the lines cross (as before the mesher placed them on
+    /// the quantize grid), so the file moves every one sideways; meshed as
+    /// the pipeline does, with them on the grid, the same chunks have
+    /// nothing to move and are within δ as written.
+    #[test]
+    fn cut_error_is_exact_over_what_the_caller_accepts() {
+        use crate::heightfield::Heightfield;
+        use crate::mesh::decimate::{ChunkSpec, MAX_VERTICES, build_chunk};
+        use crate::quadtree::ChunkKey;
+        let (w, h) = (257usize, 257usize);
+        let heights: Vec<f32> = (0..w * h)
+            .map(|k| {
+                let (x, z) = ((k % w) as f64, (k / w) as f64);
+                let hash = ((k as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40) as f64 / f64::from(1u32 << 24);
+                (900.0 * (x / 7.0).sin() * (z / 11.0).cos() + 4.0 * x + 20.0 * hash) as f32
+            })
+            .collect();
+        let hf = Heightfield {
+            width: w,
+            height: h,
+            heights,
+            spacing_m: [30.0, 30.0],
+            georef: Default::default(),
+            source: "test".into(),
+        };
+        let tree = ChunkTree::plan(w, h, 2.0, 64, 0);
+        let q = Quantization::plan(&hf, &tree, 2.0).unwrap();
+        let grid = Grid::new(w, h, &hf.heights, None);
+        let root_key = ChunkKey { level: 0, x: 0, y: 0 };
+        let (mut measured, mut moved, mut over) = (0, 0, 0);
+        for on_grid in [false, true] {
+            let mesh = |key: ChunkKey, parent: Option<&crate::mesh::ChunkMesh>| {
+                let level = key.level as usize;
+                let spec = ChunkSpec {
+                    key,
+                    footprint: tree.footprint(key),
+                    delta_m: tree.delta_m[level],
+                    parent,
+                    max_vertices: MAX_VERTICES,
+                    dividing_lines: tree.splits(key.level),
+                    split_insertion: false,
+                    cancel: None,
+                    cut_share: crate::mesh::decimate::CUT_SHARE,
+                    cut_lattice: on_grid.then_some(q.shift[level]),
+                    height_step: Some(q.step_y_m),
+                };
+                build_chunk(&grid, &spec).unwrap()
+            };
+            let root = mesh(root_key, None);
+            for child in tree.children(root_key) {
+                let m = mesh(child, Some(&root));
+                let grandchildren: Vec<_> = tree.children(child).into_iter().map(|g| mesh(g, Some(&m))).collect();
+                for m in std::iter::once(&m).chain(&grandchildren) {
+                    let delta = m.delta_m;
+                    let chunk = crate::pipeline::assemble(&grid, hf.spacing_m, m, delta);
+                    let exact = q.cut_error(&chunk, &grid, -1.0).unwrap();
+                    if on_grid {
+                        assert!(exact <= delta, "{:?}: {exact} m as written, δ {delta}", m.key);
+                        continue;
+                    }
+                    measured += 1;
+                    moved += usize::from(exact > 0.0);
+                    over += usize::from(exact > delta);
+                    for within in [0.0, exact / 2.0, exact, 2.0 * exact, delta] {
+                        let got = q.cut_error(&chunk, &grid, within).unwrap();
+                        if exact > within {
+                            assert_eq!(got, exact, "{:?} within {within}", m.key);
+                        } else {
+                            assert!(got <= within, "{:?}: {got} over {within}", m.key);
+                        }
+                    }
+                }
+            }
+        }
+        // Every chunk has cut points; in one of them no sample under their
+        // triangles moves off its surface.
+        assert_eq!(measured, 20);
+        assert!(moved >= 18, "{moved} of {measured} chunks had samples under moved triangles");
+        eprintln!("{over} of {measured} chunks with their cut points moved are over δ as written");
     }
 
     /// Every u16 step count at every horizontal step decodes, through
