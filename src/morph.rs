@@ -17,7 +17,11 @@ pub struct SurfaceLocator<'m> {
     cell: f64,
     nx: usize,
     nz: usize,
-    buckets: Vec<Vec<u32>>,
+    /// Where each bucket's entries start in `entries` (one more at the end).
+    starts: Vec<u32>,
+    /// Per bucket, the triangles whose bounding box overlaps it, each with
+    /// that box (x low, x high, z low, z high), side by side in memory.
+    entries: Vec<(u32, [f64; 4])>,
 }
 
 impl<'m> SurfaceLocator<'m> {
@@ -34,19 +38,54 @@ impl<'m> SurfaceLocator<'m> {
         let cell = (area / (tris.len().max(1) as f64)).sqrt().max(1e-9) * 2.0;
         let nx = (((x1 - x0) / cell) as usize + 1).min(4096);
         let nz = (((z1 - z0) / cell) as usize + 1).min(4096);
-        let mut buckets = vec![Vec::new(); nx * nz];
         let b = |v: f64, o: f64, n: usize| (((v - o) / cell).floor().max(0.0) as usize).min(n - 1);
-        for (t, tri) in tris.iter().enumerate() {
-            let p = tri.map(|k| verts[k as usize]);
-            let (lx, hx) = (p[0].x.min(p[1].x).min(p[2].x), p[0].x.max(p[1].x).max(p[2].x));
-            let (lz, hz) = (p[0].z.min(p[1].z).min(p[2].z), p[0].z.max(p[1].z).max(p[2].z));
-            for bz in b(lz, z0, nz)..=b(hz, z0, nz) {
-                for bx in b(lx, x0, nx)..=b(hx, x0, nx) {
-                    buckets[bz * nx + bx].push(t as u32);
-                }
+        let boxes: Vec<[f64; 4]> = tris
+            .iter()
+            .map(|tri| {
+                let p = tri.map(|k| verts[k as usize]);
+                let (lx, hx) = (p[0].x.min(p[1].x).min(p[2].x), p[0].x.max(p[1].x).max(p[2].x));
+                let (lz, hz) = (p[0].z.min(p[1].z).min(p[2].z), p[0].z.max(p[1].z).max(p[2].z));
+                [lx, hx, lz, hz]
+            })
+            .collect();
+        let cells = |bx: &[f64; 4]| {
+            let [lx, hx, lz, hz] = *bx;
+            (b(lz, z0, nz)..=b(hz, z0, nz))
+                .flat_map(move |bz| (b(lx, x0, nx)..=b(hx, x0, nx)).map(move |c| bz * nx + c))
+        };
+        // Counted, then filled in triangle order (a counting sort by bucket).
+        let mut starts = vec![0u32; nx * nz + 1];
+        for bx in &boxes {
+            for c in cells(bx) {
+                starts[c + 1] += 1;
             }
         }
-        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, buckets }
+        for c in 0..nx * nz {
+            starts[c + 1] += starts[c];
+        }
+        let mut fill = starts.clone();
+        let mut entries = vec![(0u32, [0.0; 4]); starts[nx * nz] as usize];
+        for (t, bx) in boxes.iter().enumerate() {
+            for c in cells(bx) {
+                entries[fill[c] as usize] = (t as u32, *bx);
+                fill[c] += 1;
+            }
+        }
+        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, starts, entries }
+    }
+
+    /// The entries of bucket `c`.
+    #[inline]
+    fn bucket(&self, c: usize) -> &[(u32, [f64; 4])] {
+        &self.entries[self.starts[c] as usize..self.starts[c + 1] as usize]
+    }
+
+    /// Whether (x, z) is further than `tol` from a triangle's bounding box,
+    /// and so from the triangle: no need to measure.
+    #[inline]
+    fn far(bx: &[f64; 4], x: f64, z: f64, tol: f64) -> bool {
+        let [lx, hx, lz, hz] = *bx;
+        x < lx - tol || x > hx + tol || z < lz - tol || z > hz + tol
     }
 
     /// The triangle containing (x, z): among those that contain it exactly,
@@ -56,10 +95,16 @@ impl<'m> SurfaceLocator<'m> {
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
         let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
-        let bucket = &self.buckets[b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx)];
+        let bucket = self.bucket(b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx));
         let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
         let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
-        for &t in bucket {
+        // Only a triangle within the tolerance can be returned.
+        let reach = tol.max(1e-6);
+        for (t, bx) in bucket {
+            if Self::far(bx, x, z, reach) {
+                continue;
+            }
+            let t = *t;
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
             let (outside, h) = barycentric(&a, &p, &q, x, z);
             if !outside.is_finite() {
@@ -73,7 +118,7 @@ impl<'m> SurfaceLocator<'m> {
                 nearest = Some((outside, t, h));
             }
         }
-        inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= tol.max(1e-6)).map(|n| (n.1, n.2)))
+        inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= reach).map(|n| (n.1, n.2)))
     }
 
     /// Every triangle within `tol` grid units of (x, z), those containing it
@@ -86,7 +131,10 @@ impl<'m> SurfaceLocator<'m> {
         let mut found: Vec<(u32, f64)> = Vec::new();
         for bz in b(z - tol, self.origin.1, self.nz)..=b(z + tol, self.origin.1, self.nz) {
             for bx in b(x - tol, self.origin.0, self.nx)..=b(x + tol, self.origin.0, self.nx) {
-                for &t in &self.buckets[bz * self.nx + bx] {
+                for &(t, ref bounds) in self.bucket(bz * self.nx + bx) {
+                    if Self::far(bounds, x, z, tol) {
+                        continue;
+                    }
                     let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
                     let (outside, h) = barycentric(&a, &p, &q, x, z);
                     if outside <= tol && !found.iter().any(|f| f.0 == t) {
@@ -96,6 +144,65 @@ impl<'m> SurfaceLocator<'m> {
             }
         }
         found
+    }
+}
+
+/// Visits every grid point (column `j`, row `i`) of `rows` × `cols` (whole
+/// numbers, inclusive ranges) within `tol` grid units of triangle `tri`, by
+/// [`barycentric`], with the triangle's plane height there.
+///
+/// Row by row over the triangle's own span on that row (its x over the band
+/// of rows within `tol`, widened by `tol` and a margin for rounding), not
+/// over its bounding box: a point outside costs three distances to the
+/// edges, and a sliver's box is mostly outside. The points visited, and
+/// what they are visited with, are exactly those of the box scan (tested).
+pub fn points_near_triangle(
+    tri: &[MeshVertex; 3],
+    rows: (f64, f64),
+    cols: (f64, f64),
+    tol: f64,
+    mut visit: impl FnMut(usize, usize, f64),
+) {
+    let [a, b, d] = tri;
+    if rows.0 > rows.1 || cols.0 > cols.1 {
+        return;
+    }
+    let band = tol + 1e-9;
+    for i in rows.0 as usize..=rows.1 as usize {
+        let z = i as f64;
+        let (lo, hi) = (z - band, z + band);
+        // The triangle's x over the band z ∈ [lo, hi]: each edge clipped to
+        // the band, its x at the clipped ends (x is linear along an edge).
+        let (mut xmin, mut xmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (p, q) in [(a, b), (b, d), (d, a)] {
+            let (z0, z1) = (p.z.min(q.z).max(lo), p.z.max(q.z).min(hi));
+            if z0 > z1 {
+                continue;
+            }
+            if q.z == p.z {
+                (xmin, xmax) = (xmin.min(p.x.min(q.x)), xmax.max(p.x.max(q.x)));
+                continue;
+            }
+            for zc in [z0, z1] {
+                let x = p.x + (q.x - p.x) * ((zc - p.z) / (q.z - p.z));
+                (xmin, xmax) = (xmin.min(x), xmax.max(x));
+            }
+        }
+        if xmin > xmax {
+            continue;
+        }
+        let margin = band + 1e-9 * (1.0 + xmin.abs().max(xmax.abs()));
+        let j0 = (xmin - margin).ceil().max(cols.0);
+        let j1 = (xmax + margin).floor().min(cols.1);
+        if j0 > j1 {
+            continue;
+        }
+        for j in j0 as usize..=j1 as usize {
+            let (outside, h) = barycentric(a, b, d, j as f64, z);
+            if outside <= tol {
+                visit(i, j, h);
+            }
+        }
     }
 }
 
@@ -129,6 +236,80 @@ mod tests {
 
     fn v(x: f64, z: f64, h: f64) -> MeshVertex {
         MeshVertex { x, z, h, ph: h }
+    }
+
+    /// `points_near_triangle` visits exactly the points the bounding-box
+    /// scan it replaced did (every point of the box within the tolerance,
+    /// by `barycentric`), in the same order and with the same heights: with
+    /// the box as `cut_error` takes it (whole points inside it) and as
+    /// `verify` does (widened by 10⁻⁴ and clipped to a footprint), on
+    /// slivers along a line with corners at 1/256 of a cell, triangles with
+    /// corners a hair off a row or column, and random ones.
+    #[test]
+    fn rows_visit_what_the_bounding_box_did() {
+        let (w, h) = (40.0f64, 33.0f64);
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let unit = |r: u64| (r % 1_000_000) as f64 / 1_000_000.0;
+        let box_scan = |t: &[MeshVertex; 3], rows: (f64, f64), cols: (f64, f64), tol: f64| {
+            let mut out = Vec::new();
+            if rows.0 <= rows.1 && cols.0 <= cols.1 {
+                for i in rows.0 as usize..=rows.1 as usize {
+                    for j in cols.0 as usize..=cols.1 as usize {
+                        let (outside, y) = barycentric(&t[0], &t[1], &t[2], j as f64, i as f64);
+                        if outside <= tol {
+                            out.push((i, j, y.to_bits()));
+                        }
+                    }
+                }
+            }
+            out
+        };
+        let mut visited = 0;
+        for n in 0..6000 {
+            let tri = match n % 3 {
+                0 => {
+                    let line = (next() % 40) as f64;
+                    let z0 = (next() % (33 * 256)) as f64 / 256.0;
+                    let z1 = (z0 + 1.0 + (next() % 3000) as f64 / 256.0).min(h - 1.0);
+                    let far = (line + 1.0 + (next() % 6) as f64).min(w - 1.0);
+                    [v(line, z0, unit(next())), v(far, (z0 + z1) / 2.0 + unit(next()), 50.0), v(line, z1, -9.0)]
+                }
+                1 => [0, 1, 2].map(|_| {
+                    let hair = |r: u64| (unit(r) - 0.5) * 4e-4;
+                    let x = ((next() % 40) as f64 + hair(next())).clamp(0.0, w - 1.0);
+                    let z = ((next() % 33) as f64 + hair(next())).clamp(0.0, h - 1.0);
+                    v(x, z, 80.0 * unit(next()))
+                }),
+                _ => [0, 1, 2].map(|_| {
+                    let c = |r: u64, n: f64| (r % (n as u64 * 256 - 255)) as f64 / 256.0;
+                    v(c(next(), w), c(next(), h), 80.0 * unit(next()))
+                }),
+            };
+            let [a, b, d] = &tri;
+            let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
+            let (xlo, xhi) = (a.x.min(b.x).min(d.x), a.x.max(b.x).max(d.x));
+            // cut_error's box, then verify's over a footprint [3, 30] × [2, 25].
+            let cut =
+                ((zlo.ceil().max(0.0), zhi.floor().min(h - 1.0)), (xlo.ceil().max(0.0), xhi.floor().min(w - 1.0)));
+            let ver = (
+                ((zlo - 1e-4).ceil().max(2.0), (zhi + 1e-4).floor().min(25.0)),
+                ((xlo - 1e-4).ceil().max(3.0), (xhi + 1e-4).floor().min(30.0)),
+            );
+            for (rows, cols) in [cut, ver] {
+                let mut got = Vec::new();
+                points_near_triangle(&tri, rows, cols, 1e-4, |i, j, y| got.push((i, j, y.to_bits())));
+                let want = box_scan(&tri, rows, cols, 1e-4);
+                assert_eq!(got, want, "triangle {n}: {tri:?}, rows {rows:?}, cols {cols:?}");
+                visited += want.len();
+            }
+        }
+        assert!(visited > 20_000, "the triangles covered points ({visited})");
     }
 
     /// A crease: a flat triangle beside a steep one along x = 1. A point read

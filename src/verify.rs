@@ -43,7 +43,7 @@ use serde_json::Value;
 use crate::dem::{self, LoadOptions};
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
-use crate::morph::{SurfaceLocator, barycentric};
+use crate::morph::{SurfaceLocator, barycentric, points_near_triangle};
 use crate::output::tileset::{TileExtras, TilesetExtras};
 use crate::quadtree::ChunkKey;
 use crate::texture::{Limit, TextureExtras};
@@ -792,23 +792,18 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
         let zhi = a.z.max(b.z).max(d.z);
         let xlo = a.x.min(b.x).min(d.x);
         let xhi = a.x.max(b.x).max(d.x);
-        for i in ((zlo - 1e-4).ceil().max(f64::from(z0)) as u32)..=((zhi + 1e-4).floor().min(f64::from(z1)) as u32) {
-            for j in ((xlo - 1e-4).ceil().max(f64::from(x0)) as u32)..=((xhi + 1e-4).floor().min(f64::from(x1)) as u32)
-            {
-                let (outside, h) = barycentric(&a, &b, &d, f64::from(j), f64::from(i));
-                if outside > 1e-4 {
-                    continue; // more than f32 rounding away (grid units)
-                }
-                let s = hf.get(i as usize, j as usize);
-                seen += 1;
-                valid += usize::from(!s.is_nan());
-                if s.is_nan() {
-                    continue;
-                }
-                let e = &mut best[(i - z0) as usize * w + (j - x0) as usize];
+        // Samples within f32 rounding (10⁻⁴ grid units) of the triangle.
+        let rows = ((zlo - 1e-4).ceil().max(f64::from(z0)), (zhi + 1e-4).floor().min(f64::from(z1)));
+        let cols = ((xlo - 1e-4).ceil().max(f64::from(x0)), (xhi + 1e-4).floor().min(f64::from(x1)));
+        points_near_triangle(&[a, b, d], rows, cols, 1e-4, |i, j, h| {
+            let s = hf.get(i, j);
+            seen += 1;
+            valid += usize::from(!s.is_nan());
+            if !s.is_nan() {
+                let e = &mut best[(i - z0 as usize) * w + (j - x0 as usize)];
                 *e = e.min((h - f64::from(s)).abs());
             }
-        }
+        });
         if seen > 0 && valid == 0 {
             over_nodata += 1;
         }

@@ -135,7 +135,7 @@ use crate::chunk::Chunk;
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::mesh::decimate::Grid;
-use crate::morph::barycentric;
+use crate::morph::points_near_triangle;
 use crate::output::gltf::PrimData;
 use crate::quadtree::ChunkTree;
 
@@ -277,57 +277,31 @@ impl Quantization {
                 near[i] = true;
             }
         }
-        // The cut-point triangles' samples, each with its best fit among
-        // them (sorted by sample, one entry each), then improved by the
-        // triangles next to them.
         // Usually every sample is within `within` under every cut-point
         // triangle over it: one pass says so and stores nothing.
         let (mut over, mut low) = (false, 0.0f64);
         for t in triangles.iter().filter(|t| is_cut(t)) {
-            near_samples(
-                grid,
-                &t.map(|i| written[i]),
-                |_| true,
-                |_, e| match e > within {
-                    true => over = true,
-                    false => low = low.max(e),
-                },
-            );
+            near_samples(grid, &t.map(|i| written[i]), |_, e| match e > within {
+                true => over = true,
+                false => low = low.max(e),
+            });
         }
         if !over {
             return Ok(low);
         }
+        // Otherwise the cut-point triangles' samples, each with its best fit
+        // among them (sorted by sample, one entry each); those still over
+        // `within` are then improved by the triangles next to them.
         let mut best: Vec<(usize, f64)> = Vec::new();
         for t in triangles.iter().filter(|t| is_cut(t)) {
-            near_samples(grid, &t.map(|i| written[i]), |_| true, |k, e| best.push((k, e)));
+            near_samples(grid, &t.map(|i| written[i]), |k, e| best.push((k, e)));
         }
         best.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
         best.dedup_by_key(|b| b.0);
         let low = best.iter().map(|b| b.1).filter(|&e| e <= within).fold(0.0, f64::max);
         best.retain(|b| b.1 > within);
-        if best.is_empty() {
-            return Ok(low);
-        }
-        // Which samples those are, by bit over their bounding box: most
-        // samples the neighbours cover are not among them, and a bit is
-        // cheaper than the plane's distance or a search.
-        let (w, mut lo, mut hi) = (grid.width, [usize::MAX; 2], [0usize; 2]);
-        for &(k, _) in &best {
-            let (i, j) = (k / w, k % w);
-            (lo, hi) = ([lo[0].min(i), lo[1].min(j)], [hi[0].max(i), hi[1].max(j)]);
-        }
-        let bw = (hi[1] + 1).saturating_sub(lo[1]);
-        let bit = |k: usize| {
-            let (i, j) = (k / w, k % w);
-            (i >= lo[0] && i <= hi[0] && j >= lo[1] && j <= hi[1]).then(|| (i - lo[0]) * bw + (j - lo[1]))
-        };
-        let mut marked = vec![0u64; (bw * (hi[0] + 1).saturating_sub(lo[0])).div_ceil(64)];
-        for b in best.iter().filter_map(|&(k, _)| bit(k)) {
-            marked[b / 64] |= 1 << (b % 64);
-        }
-        let wanted = |k: usize| bit(k).is_some_and(|b| marked[b / 64] & (1 << (b % 64)) != 0);
         for t in triangles.iter().filter(|t| !is_cut(t) && t.iter().any(|&i| near[i])) {
-            near_samples(grid, &t.map(|i| written[i]), wanted, |k, e| {
+            near_samples(grid, &t.map(|i| written[i]), |k, e| {
                 if let Ok(at) = best.binary_search_by_key(&k, |b| b.0) {
                     best[at].1 = best[at].1.min(e);
                 }
@@ -1298,139 +1272,24 @@ fn read_accessor(
 const UNDER_CELLS: f64 = 1e-4;
 
 /// Visits each valid sample within [`UNDER_CELLS`] of triangle `tri` (grid
-/// coordinates) that `want`s its index in the grid, with that index and
+/// coordinates, within its bounding box) with its index in the grid and
 /// |plane − sample|.
-///
-/// Row by row over the triangle's own span on that row (widened by the
-/// tolerance and a margin for rounding), not its bounding box: a cut-point
-/// triangle is often a sliver along its dividing line, whose box is mostly
-/// empty, and every sample off the triangle cost three distances to its
-/// edges. Which samples count is still `barycentric`'s call, as before.
-fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], want: impl Fn(usize) -> bool, mut visit: impl FnMut(usize, f64)) {
+fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], mut visit: impl FnMut(usize, f64)) {
     let [a, b, d] = tri;
-    let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
-    let rows = (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((grid.height - 1) as f64) as usize);
-    let band = UNDER_CELLS + 1e-9;
-    // Columns within the bounding box, as the scan this replaced took them.
-    let (left, right) =
-        (a.x.min(b.x).min(d.x).ceil().max(0.0), a.x.max(b.x).max(d.x).floor().min((grid.width - 1) as f64));
-    for i in rows {
-        let z = i as f64;
-        let (lo, hi) = (z - band, z + band);
-        // The triangle's x over the band z ∈ [lo, hi]: each edge clipped to
-        // the band, its x at the clipped ends (x is linear along an edge).
-        let (mut xmin, mut xmax) = (f64::INFINITY, f64::NEG_INFINITY);
-        for (p, q) in [(a, b), (b, d), (d, a)] {
-            let (z0, z1) = (p.z.min(q.z).max(lo), p.z.max(q.z).min(hi));
-            if z0 > z1 {
-                continue;
-            }
-            for zc in [z0, z1] {
-                let x = if q.z == p.z { p.x.min(q.x) } else { p.x + (q.x - p.x) * ((zc - p.z) / (q.z - p.z)) };
-                let x2 = if q.z == p.z { p.x.max(q.x) } else { x };
-                xmin = xmin.min(x);
-                xmax = xmax.max(x2);
-            }
-        }
-        if xmin > xmax {
-            continue;
-        }
-        let margin = band + 1e-9 * (1.0 + xmin.abs().max(xmax.abs()));
-        let j0 = (xmin - margin).ceil().max(left);
-        let j1 = (xmax + margin).floor().min(right);
-        if j0 > j1 {
-            continue;
-        }
-        for j in j0 as usize..=j1 as usize {
-            let k = i * grid.width + j;
-            if !want(k) {
-                continue;
-            }
-            let (outside, h) = barycentric(a, b, d, j as f64, z);
-            let sample = grid.heights[k];
-            if outside > UNDER_CELLS || sample.is_nan() {
-                continue;
-            }
+    let rows = (a.z.min(b.z).min(d.z).ceil().max(0.0), a.z.max(b.z).max(d.z).floor().min((grid.height - 1) as f64));
+    let cols = (a.x.min(b.x).min(d.x).ceil().max(0.0), a.x.max(b.x).max(d.x).floor().min((grid.width - 1) as f64));
+    points_near_triangle(tri, rows, cols, UNDER_CELLS, |i, j, h| {
+        let k = i * grid.width + j;
+        let sample = grid.heights[k];
+        if !sample.is_nan() {
             visit(k, (h - f64::from(sample)).abs());
         }
-    }
+    });
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The row-span scan behind `cut_error` visits exactly the samples the
-    /// bounding-box scan it replaced did (every sample of the box within
-    /// `UNDER_CELLS` of the triangle, by `barycentric`), with the same
-    /// errors, on slivers along dividing lines with cut points at 1/256 of
-    /// a cell, triangles with corners a hair off a row or column, and
-    /// random ones, over a grid with nodata.
-    #[test]
-    fn cut_error_rows_visit_what_the_bounding_box_did() {
-        let (w, h) = (40usize, 33usize);
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
-        let heights: Vec<f32> = (0..w * h)
-            .map(|k| if k % 37 == 5 { f32::NAN } else { (k as f32 * 0.37).sin() * 50.0 + (k / w) as f32 })
-            .collect();
-        let grid = Grid::new(w, h, &heights, None);
-        let box_scan = |t: &[MeshVertex; 3]| {
-            let [a, b, d] = t;
-            let mut out = Vec::new();
-            let (zlo, zhi) = (a.z.min(b.z).min(d.z), a.z.max(b.z).max(d.z));
-            let (xlo, xhi) = (a.x.min(b.x).min(d.x), a.x.max(b.x).max(d.x));
-            for i in (zlo.ceil().max(0.0) as usize)..=(zhi.floor().min((h - 1) as f64) as usize) {
-                for j in (xlo.ceil().max(0.0) as usize)..=(xhi.floor().min((w - 1) as f64) as usize) {
-                    let (outside, y) = barycentric(a, b, d, j as f64, i as f64);
-                    let sample = heights[i * w + j];
-                    if outside <= UNDER_CELLS && !sample.is_nan() {
-                        out.push((i * w + j, (y - f64::from(sample)).abs()));
-                    }
-                }
-            }
-            out
-        };
-        let unit = |r: u64| (r % 1_000_000) as f64 / 1_000_000.0;
-        let mut visited = 0;
-        for n in 0..4000 {
-            let v = |x: f64, z: f64, r: u64| MeshVertex { x, z, h: unit(r) * 80.0, ph: 0.0 };
-            let tri = match n % 4 {
-                // A sliver: two corners on a vertical line (one a cut point
-                // on 1/256 steps), the third a few cells off it.
-                0 => {
-                    let line = (next() % w as u64) as f64;
-                    let z0 = (next() % (h as u64 * 256)) as f64 / 256.0;
-                    let z1 = (z0 + 1.0 + (next() % 3000) as f64 / 256.0).min((h - 1) as f64);
-                    let far = (line + 1.0 + (next() % 6) as f64).min((w - 1) as f64);
-                    [v(line, z0, next()), v(far, (z0 + z1) / 2.0 + unit(next()), next()), v(line, z1, next())]
-                }
-                // Corners a hair (≤ 2·10⁻⁴ cells) off whole coordinates.
-                1 => [0, 1, 2].map(|_| {
-                    let hair = |r: u64| (unit(r) - 0.5) * 4e-4;
-                    let x = (next() % w as u64) as f64 + hair(next());
-                    let z = (next() % h as u64) as f64 + hair(next());
-                    v(x.clamp(0.0, (w - 1) as f64), z.clamp(0.0, (h - 1) as f64), next())
-                }),
-                // Anywhere, corners on 1/256 steps.
-                _ => [0, 1, 2].map(|_| {
-                    let c = |r: u64, n: usize| (r % (n as u64 * 256 - 255)) as f64 / 256.0;
-                    v(c(next(), w), c(next(), h), next())
-                }),
-            };
-            let mut rows = Vec::new();
-            near_samples(&grid, &tri, |_| true, |k, e| rows.push((k, e)));
-            let boxed = box_scan(&tri);
-            assert_eq!(rows, boxed, "triangle {n}: {tri:?}");
-            visited += boxed.len();
-        }
-        assert!(visited > 10_000, "the triangles covered samples ({visited})");
-    }
 
     /// `cut_error` with an acceptable error: exact wherever the chunk is
     /// over it, at most it where the chunk is within it, so the caller's
