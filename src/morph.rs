@@ -19,9 +19,10 @@ pub struct SurfaceLocator<'m> {
     nz: usize,
     /// Where each bucket's entries start in `entries` (one more at the end).
     starts: Vec<u32>,
-    /// Per bucket, the triangles whose bounding box overlaps it, each with
-    /// that box (x low, x high, z low, z high), side by side in memory.
-    entries: Vec<(u32, [f64; 4])>,
+    /// Per bucket, the triangles whose bounding box overlaps it.
+    entries: Vec<u32>,
+    /// Each triangle's bounding box: x low, x high, z low, z high.
+    boxes: Vec<[f64; 4]>,
 }
 
 impl<'m> SurfaceLocator<'m> {
@@ -64,27 +65,27 @@ impl<'m> SurfaceLocator<'m> {
             starts[c + 1] += starts[c];
         }
         let mut fill = starts.clone();
-        let mut entries = vec![(0u32, [0.0; 4]); starts[nx * nz] as usize];
+        let mut entries = vec![0u32; starts[nx * nz] as usize];
         for (t, bx) in boxes.iter().enumerate() {
             for c in cells(bx) {
-                entries[fill[c] as usize] = (t as u32, *bx);
+                entries[fill[c] as usize] = t as u32;
                 fill[c] += 1;
             }
         }
-        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, starts, entries }
+        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, starts, entries, boxes }
     }
 
     /// The entries of bucket `c`.
     #[inline]
-    fn bucket(&self, c: usize) -> &[(u32, [f64; 4])] {
+    fn bucket(&self, c: usize) -> &[u32] {
         &self.entries[self.starts[c] as usize..self.starts[c + 1] as usize]
     }
 
-    /// Whether (x, z) is further than `tol` from a triangle's bounding box,
-    /// and so from the triangle: no need to measure.
+    /// Whether (x, z) is further than `tol` from triangle `t`'s bounding
+    /// box, and so from the triangle: no need to measure.
     #[inline]
-    fn far(bx: &[f64; 4], x: f64, z: f64, tol: f64) -> bool {
-        let [lx, hx, lz, hz] = *bx;
+    fn far(&self, t: u32, x: f64, z: f64, tol: f64) -> bool {
+        let [lx, hx, lz, hz] = self.boxes[t as usize];
         x < lx - tol || x > hx + tol || z < lz - tol || z > hz + tol
     }
 
@@ -100,11 +101,10 @@ impl<'m> SurfaceLocator<'m> {
         let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
         // Only a triangle within the tolerance can be returned.
         let reach = tol.max(1e-6);
-        for (t, bx) in bucket {
-            if Self::far(bx, x, z, reach) {
+        for &t in bucket {
+            if self.far(t, x, z, reach) {
                 continue;
             }
-            let t = *t;
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
             let (outside, h) = barycentric(&a, &p, &q, x, z);
             if !outside.is_finite() {
@@ -131,8 +131,8 @@ impl<'m> SurfaceLocator<'m> {
         let mut found: Vec<(u32, f64)> = Vec::new();
         for bz in b(z - tol, self.origin.1, self.nz)..=b(z + tol, self.origin.1, self.nz) {
             for bx in b(x - tol, self.origin.0, self.nx)..=b(x + tol, self.origin.0, self.nx) {
-                for &(t, ref bounds) in self.bucket(bz * self.nx + bx) {
-                    if Self::far(bounds, x, z, tol) {
+                for &t in self.bucket(bz * self.nx + bx) {
+                    if self.far(t, x, z, tol) {
                         continue;
                     }
                     let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
