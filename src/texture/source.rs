@@ -217,19 +217,23 @@ pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Resul
     let (ex, ez) = ((hf.width - 1) as f64 / (width - 1) as f64, (hf.height - 1) as f64 / (height - 1) as f64);
     let [sx, sz] = hf.spacing_m;
     let mut rgb = vec![0u8; width * height * 3];
+    // One texel per sample (the default): every point read is a sample,
+    // where `at` gives the sample itself, so it is read directly.
+    let on_samples = width == hf.width && height == hf.height;
+    let at = |x: f64, z: f64| if on_samples { surface.at_sample(z as usize, x as usize) } else { surface.at(x, z) };
     rgb.par_chunks_mut(width * 3).enumerate().for_each(|(r, row)| {
         let z = gz(r);
         let (zm, zp) = ((z - ez).max(0.0), (z + ez).min((hf.height - 1) as f64));
         for c in 0..width {
             let x = gx(c);
             let (xm, xp) = ((x - ex).max(0.0), (x + ex).min((hf.width - 1) as f64));
-            let dx = (surface.at(xp, z) - surface.at(xm, z)) / ((xp - xm) * sx);
-            let dz = (surface.at(x, zp) - surface.at(x, zm)) / ((zp - zm) * sz);
+            let dx = (at(xp, z) - at(xm, z)) / ((xp - xm) * sx);
+            let dz = (at(x, zp) - at(x, zm)) / ((zp - zm) * sz);
             let n = [-dx, 1.0, -dz];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let lambert = ((n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]) / len).max(0.0);
             let light = (AMBIENT + (1.0 - AMBIENT) * lambert) / flat;
-            let colour = tint.at(surface.at(x, z));
+            let colour = tint.at(at(x, z));
             for ch in 0..3 {
                 row[c * 3 + ch] = linear_to_srgb((f64::from(colour[ch]) * light) as f32);
             }
@@ -270,6 +274,19 @@ impl Bilinear<'_> {
         let top = v(i, j) + (v(i, j + 1) - v(i, j)) * fx;
         let bottom = v(i + 1, j) + (v(i + 1, j + 1) - v(i + 1, j)) * fx;
         top + (bottom - top) * fz
+    }
+
+    /// [`Self::at`] on sample (row `i`, column `j`): off the last row and
+    /// column its weights are 1 and 0, so it is the sample itself (nodata
+    /// as 0); on them `at` interpolates from the cell before, as here.
+    #[inline]
+    fn at_sample(&self, i: usize, j: usize) -> f64 {
+        if i + 1 < self.h && j + 1 < self.w {
+            let h = self.heights[i * self.w + j];
+            if h.is_nan() { 0.0 } else { f64::from(h) }
+        } else {
+            self.at(j as f64, i as f64)
+        }
     }
 }
 
@@ -338,6 +355,32 @@ impl TextureSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The hillshade reads a sample directly where it has one texel per
+    /// sample: the same value `at` interpolates there, on every sample of a
+    /// grid with nodata, extreme and signed-zero heights, last row and
+    /// column included.
+    #[test]
+    fn a_sample_read_directly_is_what_bilinear_gives_there() {
+        let (w, h) = (13usize, 9usize);
+        let heights: Vec<f32> = (0..w * h)
+            .map(|k| match k % 11 {
+                0 => f32::NAN,
+                1 => -0.0,
+                2 => 8848.86,
+                3 => -10_994.0,
+                4 => 1.0e-7,
+                _ => (k as f32 * 0.731).sin() * 3000.0,
+            })
+            .collect();
+        let surface = Bilinear { w, h, heights: &heights };
+        for i in 0..h {
+            for j in 0..w {
+                let (direct, bilinear) = (surface.at_sample(i, j), surface.at(j as f64, i as f64));
+                assert!(direct == bilinear && !direct.is_nan(), "({i}, {j}): {direct} against {bilinear}");
+            }
+        }
+    }
 
     #[test]
     fn tint_is_green_low_white_high_and_blue_below_sea_level() {
