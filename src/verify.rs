@@ -422,7 +422,7 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     if ts["asset"]["version"] != "1.1" {
         fail(&mut report, "tileset.json: asset.version is not \"1.1\"".into());
     }
-    let mut tiles: BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)> = BTreeMap::new();
+    let mut tiles: BTreeMap<ChunkKey, Vec<ChunkKey>> = BTreeMap::new();
     check_tile(&ts["root"], None, &extras, &mut tiles, &mut report.failures, "REPLACE");
 
     let sources: Vec<PathBuf> = match dem_override {
@@ -442,7 +442,7 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     // Level by level, holding only that level and its parents: chunks read
     // in parallel, then error, coverage and morph per chunk, then borders.
     let mut parent_of: BTreeMap<ChunkKey, ChunkKey> = BTreeMap::new();
-    for (k, (_, kids)) in &tiles {
+    for (k, kids) in &tiles {
         for kid in kids {
             parent_of.insert(*kid, *k);
         }
@@ -478,7 +478,7 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
 fn check_level(
     hf: &crate::heightfield::Heightfield,
     extras: &TilesetExtras,
-    tiles: &BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)>,
+    tiles: &BTreeMap<ChunkKey, Vec<ChunkKey>>,
     parent_of: &BTreeMap<ChunkKey, ChunkKey>,
     parents: &BTreeMap<ChunkKey, ChunkFile>,
     chunks: &BTreeMap<ChunkKey, ChunkFile>,
@@ -489,7 +489,7 @@ fn check_level(
         .par_iter()
         .map(|(k, c)| {
             let mut problems = Vec::new();
-            let has_children = !tiles[k].1.is_empty();
+            let has_children = !tiles[k].is_empty();
             let err = check_error(hf, c, extras.spacing_m, &mut problems);
             if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m {
                 problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
@@ -706,7 +706,7 @@ fn check_tile(
     t: &Value,
     parent: Option<(ChunkKey, f64)>,
     extras: &TilesetExtras,
-    tiles: &mut BTreeMap<ChunkKey, (Value, Vec<ChunkKey>)>,
+    tiles: &mut BTreeMap<ChunkKey, Vec<ChunkKey>>,
     failures: &mut Vec<String>,
     inherited_refine: &str,
 ) -> Option<ChunkKey> {
@@ -747,10 +747,12 @@ fn check_tile(
                         ));
                     }
                     if let Some(e) = tiles.get_mut(&pk) {
-                        e.1.push(k);
+                        e.push(k);
                     }
                 }
-                tiles.insert(k, (t.clone(), Vec::new()));
+                // Its children, as they are found (not a copy of the tile:
+                // that held each subtree once per tile above it).
+                tiles.insert(k, Vec::new());
                 me = Some((k, te.delta_m));
             }
             Err(e) => failures.push(format!("tile without valid extras.terrachunk: {e}")),
