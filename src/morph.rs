@@ -39,7 +39,7 @@ impl<'m> SurfaceLocator<'m> {
         let cell = (area / (tris.len().max(1) as f64)).sqrt().max(1e-9) * 2.0;
         let nx = (((x1 - x0) / cell) as usize + 1).min(4096);
         let nz = (((z1 - z0) / cell) as usize + 1).min(4096);
-        let b = |v: f64, o: f64, n: usize| (((v - o) / cell).floor().max(0.0) as usize).min(n - 1);
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, cell, n);
         let boxes: Vec<[f64; 4]> = tris
             .iter()
             .map(|tri| {
@@ -95,7 +95,7 @@ impl<'m> SurfaceLocator<'m> {
     /// none, the nearest one within `tol` grid units. Returns it and the
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
-        let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.cell, n);
         let bucket = self.bucket(b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx));
         let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
         let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
@@ -127,7 +127,7 @@ impl<'m> SurfaceLocator<'m> {
     /// necessarily the one [`Self::locate`] picks).
     pub fn near(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
         let tol = tol.max(1e-6);
-        let b = |v: f64, o: f64, n: usize| (((v - o) / self.cell).floor().max(0.0) as usize).min(n - 1);
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.cell, n);
         let mut found: Vec<(u32, f64)> = Vec::new();
         for bz in b(z - tol, self.origin.1, self.nz)..=b(z + tol, self.origin.1, self.nz) {
             for bx in b(x - tol, self.origin.0, self.nx)..=b(x + tol, self.origin.0, self.nx) {
@@ -145,6 +145,13 @@ impl<'m> SurfaceLocator<'m> {
         }
         found
     }
+}
+
+/// The bucket of coordinate `v` along an axis starting at `o`, of `n`
+/// buckets of `cell` grid units (clamped to the first and last).
+#[inline]
+fn bucket_index(v: f64, o: f64, cell: f64, n: usize) -> usize {
+    (((v - o) / cell).floor().max(0.0) as usize).min(n - 1)
 }
 
 /// Visits every grid point (column `j`, row `i`) of `rows` × `cols` (whole

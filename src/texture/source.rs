@@ -267,10 +267,7 @@ impl Bilinear<'_> {
         let j = (x.floor() as usize).min(self.w - 2);
         let i = (z.floor() as usize).min(self.h - 2);
         let (fx, fz) = (x - j as f64, z - i as f64);
-        let v = |i: usize, j: usize| {
-            let h = self.heights[i * self.w + j];
-            if h.is_nan() { 0.0 } else { f64::from(h) }
-        };
+        let v = |i: usize, j: usize| self.sample(i, j);
         let top = v(i, j) + (v(i, j + 1) - v(i, j)) * fx;
         let bottom = v(i + 1, j) + (v(i + 1, j + 1) - v(i + 1, j)) * fx;
         top + (bottom - top) * fz
@@ -281,12 +278,14 @@ impl Bilinear<'_> {
     /// as 0); on them `at` interpolates from the cell before, as here.
     #[inline]
     fn at_sample(&self, i: usize, j: usize) -> f64 {
-        if i + 1 < self.h && j + 1 < self.w {
-            let h = self.heights[i * self.w + j];
-            if h.is_nan() { 0.0 } else { f64::from(h) }
-        } else {
-            self.at(j as f64, i as f64)
-        }
+        if i + 1 < self.h && j + 1 < self.w { self.sample(i, j) } else { self.at(j as f64, i as f64) }
+    }
+
+    /// Sample (row `i`, column `j`), nodata as 0.
+    #[inline]
+    fn sample(&self, i: usize, j: usize) -> f64 {
+        let h = self.heights[i * self.w + j];
+        if h.is_nan() { 0.0 } else { f64::from(h) }
     }
 }
 
