@@ -159,6 +159,12 @@ impl<'a> Layer<'a> {
 
     /// Sizes and linear pixels of chunk `key`'s tile.
     fn render(&self, sizing: &Sizing, key: ChunkKey) -> ([AxisSize; 2], Vec<f32>) {
+        let (size, axes) = self.sampling(sizing, key);
+        (size, resample(self.raster, &axes[0], &axes[1]))
+    }
+
+    /// Sizes of chunk `key`'s tile and where its texels sample the source.
+    fn sampling(&self, sizing: &Sizing, key: ChunkKey) -> ([AxisSize; 2], [AxisSampling; 2]) {
         let fp = sizing.tree.footprint(key);
         let spans = [fp.0, fp.1];
         let size = [0, 1].map(|a| sizing.axis(key.level, spans[a], a, self.texel_m[a]));
@@ -175,7 +181,40 @@ impl<'a> Layer<'a> {
                 .collect();
             AxisSampling { centres, radius: self.radius[key.level as usize][a] }
         });
-        (size, resample(self.raster, &axes[0], &axes[1]))
+        (size, axes)
+    }
+}
+
+/// The source pixel each texel of `axis` copies, when every one lands on a
+/// pixel centre and the filter is bilinear (radius 1): the tent then has a
+/// single tap of weight 1, so resampling gives the pixel's own value (edge
+/// pixels standing in beyond the edge, as the tent clamps). `None` when
+/// any texel falls between pixels or the tile is coarser than its source.
+fn pixel_copy(axis: &AxisSampling, len: usize) -> Option<Vec<usize>> {
+    if axis.radius != 1.0 || len == 0 {
+        return None;
+    }
+    let last = (len - 1) as f64;
+    axis.centres.iter().map(|&c| (c.fract() == 0.0).then(|| c.clamp(0.0, last) as usize)).collect()
+}
+
+/// The sRGB bytes of the tile sampled at `axes`: a straight copy of the
+/// source's bytes where [`pixel_copy`] allows on both axes (a source byte
+/// through linear light and back is itself, tested), else resampled in
+/// linear light and encoded.
+fn colour_tile(source: &ColourSource, axes: &[AxisSampling; 2]) -> Vec<u8> {
+    match (pixel_copy(&axes[0], source.width), pixel_copy(&axes[1], source.height)) {
+        (Some(cols), Some(rows)) => {
+            let mut rgb = Vec::with_capacity(cols.len() * rows.len() * 3);
+            for &i in &rows {
+                let row = &source.rgb[i * source.width * 3..(i + 1) * source.width * 3];
+                for &j in &cols {
+                    rgb.extend_from_slice(&row[j * 3..j * 3 + 3]);
+                }
+            }
+            rgb
+        }
+        _ => resample(source, &axes[0], &axes[1]).iter().map(|&v| linear_to_srgb(v)).collect(),
     }
 }
 
@@ -291,8 +330,8 @@ impl<'a> Texturer<'a> {
     pub fn tile(&self, key: ChunkKey) -> Result<TextureTile, TextureError> {
         let chunk = format!("{}/{}/{}", key.level, key.x, key.y);
         let encode_err = |e: image::ImageError| TextureError::Encode { chunk: chunk.clone(), what: e.to_string() };
-        let (size, linear) = self.colour.render(&self.sizing, key);
-        let rgb: Vec<u8> = linear.iter().map(|&v| linear_to_srgb(v)).collect();
+        let (size, axes) = self.colour.sampling(&self.sizing, key);
+        let rgb = colour_tile(self.colour_source, &axes);
         let [w, h] = size.map(|s| s.texels);
         let (bytes, mime) = match self.format {
             TextureFormat::Png => (encode_png(&rgb, w, h).map_err(encode_err)?, "image/png"),
@@ -516,6 +555,49 @@ mod tests {
         let s = size_axis(10.0, 100.0, 30.0, 512);
         assert_eq!(s.texels, 2);
         assert_eq!(s.texel_m, 10.0);
+    }
+
+    #[test]
+    fn a_tile_on_pixel_centres_is_the_resampled_tile_byte_for_byte() {
+        let (width, height) = (7, 5);
+        let mut state = 0x2545_f491_u32;
+        let rgb = (0..width * height * 3)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                state as u8
+            })
+            .collect();
+        let source = ColourSource {
+            width,
+            height,
+            rgb,
+            to_px: [(0.0, 1.0), (0.0, 1.0)],
+            texel_m: [1.0, 1.0],
+            name: "noise".into(),
+            placement: "test".into(),
+        };
+        let axis = |centres: &[f64], radius| AxisSampling { centres: centres.to_vec(), radius };
+        let resampled = |axes: &[AxisSampling; 2]| -> Vec<u8> {
+            resample(&source, &axes[0], &axes[1]).iter().map(|&v| linear_to_srgb(v)).collect()
+        };
+        // Every pixel, a crop, and centres beyond either edge (the edge
+        // pixel stands in): copied, and what resampling gives.
+        for axes in [
+            [axis(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 1.0), axis(&[0.0, 1.0, 2.0, 3.0, 4.0], 1.0)],
+            [axis(&[2.0, 3.0, 4.0], 1.0), axis(&[1.0, 2.0], 1.0)],
+            [axis(&[-1.0, 0.0, 6.0, 7.0], 1.0), axis(&[-2.0, 4.0, 5.0], 1.0)],
+        ] {
+            assert!(pixel_copy(&axes[0], width).is_some() && pixel_copy(&axes[1], height).is_some());
+            assert_eq!(colour_tile(&source, &axes), resampled(&axes));
+        }
+        // Between pixels, or a wider tent: resampled, not copied.
+        let between = [axis(&[0.5, 1.0], 1.0), axis(&[1.0, 2.0], 1.0)];
+        let wide = [axis(&[0.0, 2.0], 2.0), axis(&[1.0, 3.0], 2.0)];
+        assert!(pixel_copy(&between[0], width).is_none() && pixel_copy(&wide[0], width).is_none());
+        assert_eq!(colour_tile(&source, &between), resampled(&between));
+        assert_ne!(resampled(&wide)[..3], source.rgb[..3], "a wide tent averages, unlike a copy");
     }
 
     #[test]
