@@ -133,11 +133,16 @@ impl Tin {
         for v in 0..tin.pts.len() {
             start[v + 1] += start[v];
         }
+        // Each entry holds the half-edge and its end, so the search reads
+        // one small contiguous run instead of a corner of each candidate.
         let mut fill = start.clone();
-        let mut by_origin = vec![0u32; n];
-        for (e, &a) in tin.tv.iter().enumerate() {
-            by_origin[fill[a as usize] as usize] = e as u32;
-            fill[a as usize] += 1;
+        let mut by_origin = vec![(0u32, 0u32); n];
+        for (t, c) in tin.tv.chunks_exact(3).enumerate() {
+            for k in 0..3 {
+                let a = c[k] as usize;
+                by_origin[fill[a] as usize] = ((3 * t + k) as u32, c[(k + 1) % 3]);
+                fill[a] += 1;
+            }
         }
         for e in 0..n as u32 {
             if tin.twin[e as usize] != NONE {
@@ -145,7 +150,7 @@ impl Tin {
             }
             let (a, b) = (tin.tv[e as usize], tin.tv[next(e) as usize]);
             let around_b = &by_origin[start[b as usize] as usize..start[b as usize + 1] as usize];
-            if let Some(&f) = around_b.iter().find(|&&f| tin.tv[next(f) as usize] == a) {
+            if let Some(&(f, _)) = around_b.iter().find(|&&(_, end)| end == a) {
                 let (e, f) = (e as usize, f as usize);
                 tin.twin[e] = f as u32;
                 tin.twin[f] = e as u32;
