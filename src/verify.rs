@@ -439,102 +439,216 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
         return Ok(report);
     }
 
-    // Level by level, holding only that level and its parents: chunks read
-    // in parallel, then error, coverage and morph per chunk, then borders.
+    // Down the tree, each chunk read once and checked against its parent
+    // (error, coverage, morph, texture), then dropped but for what its
+    // borders need; so only the chunks along the paths being walked are
+    // held, not a level and its parents (California at 1 m: 8 192 chunks
+    // each). Then level by level, as before: each chunk's findings in key
+    // order, then the borders between same-level neighbours.
     let mut parent_of: BTreeMap<ChunkKey, ChunkKey> = BTreeMap::new();
     for (k, kids) in &tiles {
         for kid in kids {
             parent_of.insert(*kid, *k);
         }
     }
-    let mut by_level: BTreeMap<u32, Vec<ChunkKey>> = BTreeMap::new();
-    for k in tiles.keys() {
-        by_level.entry(k.level).or_default().push(*k);
+    let roots: Vec<ChunkKey> = tiles.keys().filter(|k| !parent_of.contains_key(k)).copied().collect();
+    let walk = Walk { dir, hf: &hf, extras: &extras, tiles: &tiles };
+    let found: Vec<Visited> = roots.par_iter().flat_map_iter(|&k| walk.visit(k, Parent::None)).collect();
+    let mut by_level: BTreeMap<u32, BTreeMap<ChunkKey, Visited>> = BTreeMap::new();
+    for v in found {
+        by_level.entry(v.key.level).or_default().insert(v.key, v);
     }
-    let mut parents: BTreeMap<ChunkKey, ChunkFile> = BTreeMap::new();
-    for keys in by_level.values() {
-        let files: Vec<Result<ChunkFile, VerifyError>> =
-            keys.par_iter().map(|k| read_chunk(&dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y)))).collect();
-        let mut chunks = BTreeMap::new();
-        for (k, f) in keys.iter().zip(files) {
-            match f {
-                Ok(c) => {
-                    if c.key != *k {
-                        report.failures.push(format!("chunk {}: node extras say {:?}", name(*k), c.key));
-                    }
-                    chunks.insert(*k, c);
-                }
-                Err(e) => report.failures.push(format!("chunk {}: {e}", name(*k))),
-            }
-        }
-        check_level(&hf, &extras, &tiles, &parent_of, &parents, &chunks, &mut report);
-        parents = chunks;
+    for level in by_level.values() {
+        finish_level(&extras, level, &mut report);
     }
     Ok(report)
 }
 
-/// Error, coverage and morph of every chunk of one level (against its parent
-/// in `parents`), then the borders between its same-level neighbours.
-fn check_level(
-    hf: &crate::heightfield::Heightfield,
-    extras: &TilesetExtras,
-    tiles: &BTreeMap<ChunkKey, Vec<ChunkKey>>,
-    parent_of: &BTreeMap<ChunkKey, ChunkKey>,
-    parents: &BTreeMap<ChunkKey, ChunkFile>,
-    chunks: &BTreeMap<ChunkKey, ChunkFile>,
-    report: &mut VerifyReport,
-) {
-    type Checked = (ChunkKey, f64, f64, Option<(f64, Texel)>, Vec<String>);
-    let results: Vec<Checked> = chunks
-        .par_iter()
-        .map(|(k, c)| {
-            let mut problems = Vec::new();
-            let has_children = !tiles[k].is_empty();
-            let err = check_error(hf, c, extras.spacing_m, &mut problems);
-            if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m {
-                problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
+/// What checking one chunk found, and its borders for the neighbours.
+struct Visited {
+    key: ChunkKey,
+    /// The file's own failures: unreadable, or naming another chunk.
+    read: Vec<String>,
+    /// Error, morph gap, texel size and problems, if it was read.
+    checked: Option<Checked>,
+    /// The chunk cut down to its borders ([`border_record`]).
+    borders: Option<ChunkFile>,
+}
+
+type Checked = (f64, f64, Option<(f64, Texel)>, Vec<String>, f64);
+
+/// What a chunk's morph targets are checked against.
+#[derive(Clone, Copy)]
+enum Parent<'a> {
+    /// A top-level chunk: its deltas must be 0.
+    None,
+    /// The parent's file, read.
+    Read(&'a ChunkFile),
+    /// The parent's file could not be read (a failure of its own): nothing
+    /// to check the targets against.
+    Unreadable,
+}
+
+/// What every chunk's check reads.
+struct Walk<'a> {
+    dir: &'a Path,
+    hf: &'a crate::heightfield::Heightfield,
+    extras: &'a TilesetExtras,
+    tiles: &'a BTreeMap<ChunkKey, Vec<ChunkKey>>,
+}
+
+impl Walk<'_> {
+    /// Reads and checks chunk `k` against `parent`, then its subtree in
+    /// parallel.
+    fn visit(&self, k: ChunkKey, parent: Parent) -> Vec<Visited> {
+        let path = self.dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y));
+        let c = match read_chunk(&path) {
+            Ok(c) => c,
+            Err(e) => {
+                let mut out = vec![Visited {
+                    key: k,
+                    read: vec![format!("chunk {}: {e}", name(k))],
+                    checked: None,
+                    borders: None,
+                }];
+                out.extend(
+                    self.tiles[&k]
+                        .par_iter()
+                        .flat_map_iter(|&kid| self.visit(kid, Parent::Unreadable))
+                        .collect::<Vec<_>>(),
+                );
+                return out;
             }
-            let gap = match parent_of.get(k).and_then(|p| parents.get(p)) {
-                Some(p) => check_morph(c, p, extras.spacing_m, &mut problems),
-                None => {
-                    let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs()));
-                    if m > 0.0 {
-                        problems.push(format!("top-level chunk has nonzero morph deltas (up to {m} m)"));
-                    }
-                    m
+        };
+        let mut read = Vec::new();
+        if c.key != k {
+            read.push(format!("chunk {}: node extras say {:?}", name(k), c.key));
+        }
+        let checked = self.check(k, &c, parent);
+        let mut out: Vec<Visited> =
+            self.tiles[&k].par_iter().flat_map_iter(|&kid| self.visit(kid, Parent::Read(&c))).collect();
+        out.push(Visited { key: k, read, checked: Some(checked), borders: Some(border_record(&c)) });
+        out
+    }
+
+    /// Error, coverage and morph of one chunk (against its parent), and its texture.
+    fn check(&self, k: ChunkKey, c: &ChunkFile, parent: Parent) -> Checked {
+        let extras = self.extras;
+        let mut problems = Vec::new();
+        let has_children = !self.tiles[&k].is_empty();
+        let err = check_error(self.hf, c, extras.spacing_m, &mut problems);
+        if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m {
+            problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
+        }
+        let gap = match parent {
+            Parent::Read(p) => check_morph(c, p, extras.spacing_m, &mut problems),
+            Parent::Unreadable => 0.0,
+            Parent::None => {
+                let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+                if m > 0.0 {
+                    problems.push(format!("top-level chunk has nonzero morph deltas (up to {m} m)"));
                 }
-            };
-            if !c.morph_contract {
-                problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
+                m
             }
-            let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
-            (*k, err, gap, texel, problems)
+        };
+        if !c.morph_contract {
+            problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
+        }
+        let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
+        (err, gap, texel, problems, c.delta_m)
+    }
+}
+
+/// Chunk `c` with only what [`compare_border`] and [`compare_seam`] read:
+/// the surface vertices within a quarter cell of a footprint edge, the
+/// triangles with an edge between two of them (in their order), and the
+/// texture's edge texels. A vertex off the border is at least a quarter
+/// cell from it unless it is a cut point near a corner, which is kept and
+/// filtered out there as before; the comparison's own tolerance (at most
+/// 10⁻⁴ of a cell plus the f32 rounding, well under a quarter cell for any
+/// footprint a u16 or f32 chunk can have) selects among these exactly what
+/// it selected among all, so the outcome is the same.
+fn border_record(c: &ChunkFile) -> ChunkFile {
+    let [x0, x1, z0, z1] = c.footprint.map(f64::from);
+    let [sx, sz] = c.spacing_m;
+    let near = |p: &[f64; 3]| -> [bool; 4] {
+        [
+            (p[0] - x0 * sx).abs() <= 0.25 * sx,
+            (p[0] - x1 * sx).abs() <= 0.25 * sx,
+            (p[2] - z0 * sz).abs() <= 0.25 * sz,
+            (p[2] - z1 * sz).abs() <= 0.25 * sz,
+        ]
+    };
+    let s = &c.surface;
+    let bands: Vec<[bool; 4]> = s.positions.iter().map(near).collect();
+    let along_an_edge = |t: &&[u32; 3]| {
+        (0..3).any(|e| {
+            let (u, v) = (bands[t[e] as usize], bands[t[(e + 1) % 3] as usize]);
+            (0..4).any(|l| u[l] && v[l])
         })
-        .collect();
-    for (k, err, gap, texel, problems) in results {
+    };
+    let kept: Vec<[u32; 3]> = s.triangles.iter().filter(along_an_edge).copied().collect();
+    // The vertices near an edge and the far corners of those triangles, in
+    // their order.
+    let mut keep: Vec<bool> = bands.iter().map(|b| b.iter().any(|&x| x)).collect();
+    for t in &kept {
+        for &i in t {
+            keep[i as usize] = true;
+        }
+    }
+    let mut remap = vec![u32::MAX; s.positions.len()];
+    let mut positions = Vec::new();
+    for (i, p) in s.positions.iter().enumerate() {
+        if keep[i] {
+            remap[i] = positions.len() as u32;
+            positions.push(*p);
+        }
+    }
+    let triangles = kept.iter().map(|t| t.map(|i| remap[i as usize])).collect();
+    ChunkFile {
+        key: c.key,
+        delta_m: c.delta_m,
+        footprint: c.footprint,
+        translation: c.translation,
+        spacing_m: c.spacing_m,
+        surface: Prim { positions, triangles, local_extent: s.local_extent, ..Prim::default() },
+        skirt: None,
+        morph_contract: c.morph_contract,
+        texture: c.texture.clone(),
+        quantization_m: c.quantization_m,
+    }
+}
+
+/// One level's findings in key order (as the tileset lists its chunks),
+/// then the borders between same-level neighbours (east and south).
+fn finish_level(extras: &TilesetExtras, level: &BTreeMap<ChunkKey, Visited>, report: &mut VerifyReport) {
+    for v in level.values() {
+        report.failures.extend(v.read.iter().cloned());
+    }
+    for (k, v) in level {
+        let Some((err, gap, texel, problems, delta_m)) = &v.checked else { continue };
         if let (Some(tc), Some((texel_m, why))) = (report.texture.as_mut(), texel) {
             let l = tc.levels.entry(k.level).or_default();
             l.chunks += 1;
-            l.texel_m = l.texel_m.max(texel_m);
-            l.bound_m = chunks[&k].delta_m / extras.tau_max_px;
-            l.at_source += usize::from(why == Texel::AtSource);
-            l.capped += usize::from(why == Texel::Capped);
+            l.texel_m = l.texel_m.max(*texel_m);
+            l.bound_m = delta_m / extras.tau_max_px;
+            l.at_source += usize::from(*why == Texel::AtSource);
+            l.capped += usize::from(*why == Texel::Capped);
         }
         let l = report.levels.entry(k.level).or_default();
         l.chunks += 1;
-        l.delta_m = chunks[&k].delta_m;
-        l.max_error_m = l.max_error_m.max(err);
-        l.max_morph_gap_m = l.max_morph_gap_m.max(gap);
+        l.delta_m = *delta_m;
+        l.max_error_m = l.max_error_m.max(*err);
+        l.max_morph_gap_m = l.max_morph_gap_m.max(*gap);
         for p in problems {
-            report.failures.push(format!("chunk {}: {p}", name(k)));
+            report.failures.push(format!("chunk {}: {p}", name(*k)));
         }
     }
-
-    // Shared borders between same-level neighbours (east and south).
-    for (k, c) in chunks {
+    for (k, v) in level {
+        let Some(c) = &v.borders else { continue };
         for (dx, dy) in [(1, 0), (0, 1)] {
             let nk = ChunkKey { level: k.level, x: k.x + dx, y: k.y + dy };
-            if let Some(n) = chunks.get(&nk) {
+            if let Some(n) = level.get(&nk).and_then(|n| n.borders.as_ref()) {
                 report.borders_checked += 1;
                 if let Some(p) = compare_border(c, n, dx == 1, extras.spacing_m) {
                     report.failures.push(format!("chunks {} and {}: {p}", name(*k), name(nk)));

@@ -342,6 +342,32 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
     assert_eq!(code.code(), Some(1));
 }
 
+#[test]
+fn verify_names_an_unreadable_chunk_and_still_checks_its_children() {
+    let (_t, out, _) = build_ok(&fixture("dfw_texas_srtm3.tif"), 1.0);
+    let level_1: Vec<_> = all_files(&out)
+        .into_iter()
+        .map(|(p, _)| p)
+        .filter(|p| p.starts_with("tiles/1") && p.extension().is_some_and(|e| e == "glb"))
+        .collect();
+    let victim = level_1.first().expect("the fixture builds a level 1").clone();
+    let path = out.join(&victim);
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let r = verify(&out, None).unwrap();
+    let name: Vec<String> =
+        victim.with_extension("").components().skip(1).map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
+    let name = name.join("/");
+    // One failure, naming the file: its children are still read and checked
+    // (error, borders) but not blamed for morph targets that nothing was
+    // read to check them against (they were reported as a top-level chunk's
+    // nonzero deltas).
+    assert_eq!(r.failures.len(), 1, "{:?}", r.failures);
+    assert!(r.failures[0].contains(&name) && r.failures[0].contains("not a GLB"), "{:?}", r.failures);
+    let below = r.levels.keys().filter(|&&l| l > 1).count();
+    assert!(below > 0 && r.levels.values().all(|l| l.chunks > 0), "{:?}", r.levels.keys());
+}
+
 // ------------------------------------------------------------ the command line
 
 #[test]
