@@ -1165,6 +1165,74 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
 mod tests {
     use super::*;
 
+    /// The border comparisons give the same answer on chunks cut down to
+    /// their borders as on the whole chunks, on a real build (untextured,
+    /// `quantize` as well) and where a vertex was moved or one dropped.
+    #[test]
+    fn borders_compare_alike_on_whole_chunks_and_their_border_records() {
+        use crate::config::{Compress, Config};
+        use crate::pipeline::{BuildOptions, build};
+        use crate::texture::TextureSource;
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/dfw_texas_srtm3.tif");
+        for compress in [Compress::None, Compress::Quantize] {
+            let tmp = tempfile::tempdir().unwrap();
+            let out = tmp.path().join("out");
+            let config = Config { max_error_m: 1.0, compress, ..Config::default() };
+            let options = BuildOptions {
+                inputs: vec![dem.clone()],
+                out: out.clone(),
+                force: false,
+                config,
+                texture: TextureSource::None,
+                progress: false,
+            };
+            build(&options).unwrap();
+            let mut chunks = BTreeMap::new();
+            for level in std::fs::read_dir(out.join("tiles")).unwrap() {
+                for x in std::fs::read_dir(level.unwrap().path()).unwrap() {
+                    for f in std::fs::read_dir(x.unwrap().path()).unwrap() {
+                        let c = read_chunk(&f.unwrap().path()).unwrap();
+                        chunks.insert(c.key, c);
+                    }
+                }
+            }
+            let spacing = chunks.values().next().unwrap().spacing_m;
+            let mut compared = 0;
+            for (k, a) in &chunks {
+                for east in [true, false] {
+                    let nk = ChunkKey { x: k.x + u32::from(east), y: k.y + u32::from(!east), ..*k };
+                    let Some(b) = chunks.get(&nk) else { continue };
+                    // As built; one border vertex of `a` lifted 0.5 m; one
+                    // of its triangles along the border dropped.
+                    let line = if east {
+                        f64::from(a.footprint[1]) * spacing[0]
+                    } else {
+                        f64::from(a.footprint[3]) * spacing[1]
+                    };
+                    let axis = if east { 0 } else { 2 };
+                    let on = a.surface.positions.iter().position(|p| (p[axis] - line).abs() < 1e-6);
+                    let mut lifted = a.clone();
+                    let mut dropped = a.clone();
+                    if let Some(i) = on {
+                        lifted.surface.positions[i][1] += 0.5;
+                        let t = dropped.surface.triangles.iter().position(|t| t.contains(&(i as u32))).unwrap();
+                        dropped.surface.triangles.remove(t);
+                    }
+                    for a in [a, &lifted, &dropped] {
+                        let whole = compare_border(a, b, east, spacing);
+                        let cut = compare_border(&border_record(a), &border_record(b), east, spacing);
+                        assert_eq!(whole, cut, "{k:?} east {east}");
+                    }
+                    if on.is_some() {
+                        assert!(compare_border(&lifted, b, east, spacing).is_some(), "a lifted vertex is a failure");
+                    }
+                    compared += 1;
+                }
+            }
+            assert!(compared > 20, "{compared} borders");
+        }
+    }
+
     fn v(x: f64, z: f64) -> MeshVertex {
         MeshVertex { x, z, h: 0.0, ph: 0.0 }
     }
