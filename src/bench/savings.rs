@@ -7,7 +7,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::{BenchError, ChildReport, Cut, Runs, build_once, check_errors, load_options, prepare, scratch};
+use super::{BenchError, ChildReport, Cut, Outputs, Runs, build_once, check_errors, load_options, prepare, scratch};
 
 /// One DEM at one error, both trees.
 #[derive(Clone, Debug, PartialEq)]
@@ -79,6 +79,7 @@ pub fn savings(o: &Runs) -> Result<Vec<SavingsRow>, BenchError> {
     check_errors(&o.errors)?;
     std::fs::create_dir_all(&o.out).map_err(|source| BenchError::Io { path: o.out.clone(), source })?;
     let work = scratch(&o.out)?;
+    let mut outputs = Outputs::new(&work.0);
     let load = load_options(o.config.as_deref())?;
     let mut rows = Vec::new();
     for dem in &o.dems {
@@ -87,8 +88,8 @@ pub fn savings(o: &Runs) -> Result<Vec<SavingsRow>, BenchError> {
         complete.build_args.push("--complete-tree".into());
         for &e in &o.errors {
             let threads = o.threads.first().copied().unwrap_or(0);
-            let b = build_once(&o.exe, &p, o.config.as_deref(), e, threads, &work.0)?;
-            let c = build_once(&o.exe, &complete, o.config.as_deref(), e, threads, &work.0)?;
+            let b = build_once(&o.exe, &p, o.config.as_deref(), e, threads, &mut outputs)?;
+            let c = build_once(&o.exe, &complete, o.config.as_deref(), e, threads, &mut outputs)?;
             let row = SavingsRow {
                 dem: p.label.clone(),
                 samples: p.hf.width * p.hf.height,
