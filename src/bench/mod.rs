@@ -374,19 +374,17 @@ fn build_once(
 /// Runs a warm-up and `runs` timed builds; returns the reports of the timed ones.
 #[allow(clippy::too_many_arguments)]
 fn timed_builds(
-    exe: &Path,
+    r: &Runs,
     p: &Prepared,
-    config: Option<&Path>,
     max_error_m: f64,
     threads: usize,
-    warmup: usize,
-    runs: usize,
     outputs: &mut Outputs,
 ) -> Result<Vec<ChildReport>, BenchError> {
-    for _ in 0..warmup {
-        build_once(exe, p, config, max_error_m, threads, outputs)?;
+    let config = r.config.as_deref();
+    for _ in 0..r.warmup {
+        build_once(&r.exe, p, config, max_error_m, threads, outputs)?;
     }
-    (0..runs.max(1)).map(|_| build_once(exe, p, config, max_error_m, threads, outputs)).collect()
+    (0..r.runs.max(1)).map(|_| build_once(&r.exe, p, config, max_error_m, threads, outputs)).collect()
 }
 
 /// The median (mean of the middle two for an even count).
@@ -465,16 +463,7 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
         for &e in &o.base.errors {
             let mut measured = None;
             for &t in &o.base.threads {
-                let reports = timed_builds(
-                    &o.base.exe,
-                    &p,
-                    o.base.config.as_deref(),
-                    e,
-                    t,
-                    o.base.warmup,
-                    o.base.runs,
-                    &mut outputs,
-                )?;
+                let reports = timed_builds(&o.base, &p, e, t, &mut outputs)?;
                 // Every run writes the same bytes (tested), so the last one's
                 // files stand for all of them.
                 let leaves = match measured {
@@ -762,16 +751,7 @@ pub fn scaling(o: &ScaleOptions) -> Result<Vec<ScaleRow>, BenchError> {
             let p = prepare(dem, cut, &load, &work.0)?;
             for &e in &o.base.errors {
                 for &t in &o.base.threads {
-                    let reports = timed_builds(
-                        &o.base.exe,
-                        &p,
-                        o.base.config.as_deref(),
-                        e,
-                        t,
-                        o.base.warmup,
-                        o.base.runs,
-                        &mut outputs,
-                    )?;
+                    let reports = timed_builds(&o.base, &p, e, t, &mut outputs)?;
                     let last = reports.last().expect("at least one run");
                     let row = ScaleRow {
                         dem: p.label.clone(),
