@@ -469,13 +469,25 @@ struct Visited {
     key: ChunkKey,
     /// The file's own failures: unreadable, or naming another chunk.
     read: Vec<String>,
-    /// Error, morph gap, texel size and problems, if it was read.
-    checked: Option<Checked>,
+    /// What its checks found, if it was read.
+    checked: Option<Findings>,
     /// The chunk cut down to its borders ([`border_record`]).
     borders: Option<ChunkFile>,
 }
 
-type Checked = (f64, f64, Option<(f64, Texel)>, Vec<String>, f64);
+/// What one chunk's own checks found.
+struct Findings {
+    /// δ(L) from its node extras, metres.
+    delta_m: f64,
+    /// Largest error against the DEM, metres.
+    error_m: f64,
+    /// Largest morph gap to the parent surface (top level: largest delta), metres.
+    morph_gap_m: f64,
+    /// Its tile's T_g and why that may exceed the bound (textured tilesets).
+    texel: Option<(f64, Texel)>,
+    /// What failed.
+    problems: Vec<String>,
+}
 
 /// What a chunk's morph targets are checked against.
 #[derive(Clone, Copy)]
@@ -532,7 +544,7 @@ impl Walk<'_> {
     }
 
     /// Error, coverage and morph of one chunk (against its parent), and its texture.
-    fn check(&self, k: ChunkKey, c: &ChunkFile, parent: Parent) -> Checked {
+    fn check(&self, k: ChunkKey, c: &ChunkFile, parent: Parent) -> Findings {
         let extras = self.extras;
         let mut problems = Vec::new();
         let has_children = !self.tiles[&k].is_empty();
@@ -555,14 +567,14 @@ impl Walk<'_> {
             problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
         }
         let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
-        (err, gap, texel, problems, c.delta_m)
+        Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, problems }
     }
 }
 
 /// Chunk `c` with only what [`compare_border`] and [`compare_seam`] read:
 /// the surface vertices within a quarter cell of a footprint edge, the
-/// triangles with an edge between two of them (in their order), and the
-/// texture's edge texels. A vertex off the border is at least a quarter
+/// triangles with an edge between two of them near the same edge (with
+/// their far corners; all in their order), and the texture's edge texels. A vertex off the border is at least a quarter
 /// cell from it unless it is a cut point near a corner, which is kept and
 /// filtered out there as before; the comparison's own tolerance (at most
 /// 10⁻⁴ of a cell plus the f32 rounding, well under a quarter cell for any
@@ -626,21 +638,21 @@ fn finish_level(extras: &TilesetExtras, level: &BTreeMap<ChunkKey, Visited>, rep
         report.failures.extend(v.read.iter().cloned());
     }
     for (k, v) in level {
-        let Some((err, gap, texel, problems, delta_m)) = &v.checked else { continue };
-        if let (Some(tc), Some((texel_m, why))) = (report.texture.as_mut(), texel) {
+        let Some(f) = &v.checked else { continue };
+        if let (Some(tc), Some((texel_m, why))) = (report.texture.as_mut(), f.texel) {
             let l = tc.levels.entry(k.level).or_default();
             l.chunks += 1;
-            l.texel_m = l.texel_m.max(*texel_m);
-            l.bound_m = delta_m / extras.tau_max_px;
-            l.at_source += usize::from(*why == Texel::AtSource);
-            l.capped += usize::from(*why == Texel::Capped);
+            l.texel_m = l.texel_m.max(texel_m);
+            l.bound_m = f.delta_m / extras.tau_max_px;
+            l.at_source += usize::from(why == Texel::AtSource);
+            l.capped += usize::from(why == Texel::Capped);
         }
         let l = report.levels.entry(k.level).or_default();
         l.chunks += 1;
-        l.delta_m = *delta_m;
-        l.max_error_m = l.max_error_m.max(*err);
-        l.max_morph_gap_m = l.max_morph_gap_m.max(*gap);
-        for p in problems {
+        l.delta_m = f.delta_m;
+        l.max_error_m = l.max_error_m.max(f.error_m);
+        l.max_morph_gap_m = l.max_morph_gap_m.max(f.morph_gap_m);
+        for p in &f.problems {
             report.failures.push(format!("chunk {}: {p}", name(*k)));
         }
     }
