@@ -324,9 +324,9 @@ impl Outputs {
         self.dir.join(format!("run-{}", self.next))
     }
 
-    /// The latest build's output.
-    fn last(&self) -> &Path {
-        &self.kept.last().expect("a build ran").0
+    /// The latest build's tileset.
+    fn last(&self) -> PathBuf {
+        self.kept.last().expect("a build ran").0.join("tileset")
     }
 }
 
@@ -367,12 +367,11 @@ fn build_once(
     let text = std::fs::read(&report).map_err(|source| BenchError::Io { path: report.clone(), source })?;
     let parsed: ChildReport =
         serde_json::from_slice(&text).map_err(|e| BenchError::Input { path: report, what: format!("report: {e}") })?;
-    outputs.kept.push((out, parsed.bytes));
+    outputs.kept.push((dir, parsed.bytes));
     Ok(parsed)
 }
 
 /// Runs a warm-up and `runs` timed builds; returns the reports of the timed ones.
-#[allow(clippy::too_many_arguments)]
 fn timed_builds(
     r: &Runs,
     p: &Prepared,
@@ -468,7 +467,7 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
                 // files stand for all of them.
                 let leaves = match measured {
                     Some(m) => m,
-                    None => *measured.insert(measure::leaf_errors(outputs.last(), &p.hf)?),
+                    None => *measured.insert(measure::leaf_errors(&outputs.last(), &p.hf)?),
                 };
                 let last = reports.last().expect("at least one run");
                 let seconds = median_stages(&reports);
