@@ -877,3 +877,26 @@ pub fn scaling_summary(rows: &[ScaleRow]) -> String {
 fn same_dem(a: &str, b: &str) -> bool {
     a.split(' ').next() == b.split(' ').next()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn build_outputs_are_kept_until_the_budget_and_the_oldest_go_first() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut outputs = Outputs::new(tmp.path());
+        for _ in 0..3 {
+            let dir = outputs.fresh();
+            assert!(!dir.exists(), "every build gets a folder of its own");
+            std::fs::create_dir_all(dir.join("tileset")).unwrap();
+            outputs.kept.push((dir, KEEP_BYTES / 2));
+        }
+        assert_eq!(outputs.last(), tmp.path().join("run-3/tileset"));
+        // Three halves of the budget: the oldest goes before the next build,
+        // and only as many as bring it back within the budget.
+        let next = outputs.fresh();
+        let run = |k: u32| tmp.path().join(format!("run-{k}"));
+        assert!(!run(1).exists() && run(2).exists() && run(3).exists() && next == run(4));
+    }
+}
