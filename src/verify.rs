@@ -445,13 +445,8 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     // held, not a level and its parents (California at 1 m: 8 192 chunks
     // each). Then level by level, as before: each chunk's findings in key
     // order, then the borders between same-level neighbours.
-    let mut parent_of: BTreeMap<ChunkKey, ChunkKey> = BTreeMap::new();
-    for (k, kids) in &tiles {
-        for kid in kids {
-            parent_of.insert(*kid, *k);
-        }
-    }
-    let roots: Vec<ChunkKey> = tiles.keys().filter(|k| !parent_of.contains_key(k)).copied().collect();
+    let children: std::collections::BTreeSet<ChunkKey> = tiles.values().flatten().copied().collect();
+    let roots: Vec<ChunkKey> = tiles.keys().filter(|k| !children.contains(k)).copied().collect();
     let walk = Walk { dir, hf: &hf, extras: &extras, tiles: &tiles };
     let found: Vec<Visited> = roots.par_iter().flat_map_iter(|&k| walk.visit(k, Parent::None)).collect();
     let mut by_level: BTreeMap<u32, BTreeMap<ChunkKey, Visited>> = BTreeMap::new();
@@ -514,32 +509,18 @@ impl Walk<'_> {
     /// parallel.
     fn visit(&self, k: ChunkKey, parent: Parent) -> Vec<Visited> {
         let path = self.dir.join(format!("tiles/{}/{}/{}.glb", k.level, k.x, k.y));
-        let c = match read_chunk(&path) {
-            Ok(c) => c,
-            Err(e) => {
-                let mut out = vec![Visited {
-                    key: k,
-                    read: vec![format!("chunk {}: {e}", name(k))],
-                    checked: None,
-                    borders: None,
-                }];
-                out.extend(
-                    self.tiles[&k]
-                        .par_iter()
-                        .flat_map_iter(|&kid| self.visit(kid, Parent::Unreadable))
-                        .collect::<Vec<_>>(),
-                );
-                return out;
-            }
-        };
-        let mut read = Vec::new();
-        if c.key != k {
-            read.push(format!("chunk {}: node extras say {:?}", name(k), c.key));
-        }
-        let checked = self.check(k, &c, parent);
+        let file = read_chunk(&path);
+        let kids_parent = file.as_ref().map_or(Parent::Unreadable, Parent::Read);
         let mut out: Vec<Visited> =
-            self.tiles[&k].par_iter().flat_map_iter(|&kid| self.visit(kid, Parent::Read(&c))).collect();
-        out.push(Visited { key: k, read, checked: Some(checked), borders: Some(border_record(&c)) });
+            self.tiles[&k].par_iter().flat_map_iter(|&kid| self.visit(kid, kids_parent)).collect();
+        out.push(match &file {
+            Ok(c) => {
+                let read = (c.key != k).then(|| format!("chunk {}: node extras say {:?}", name(k), c.key));
+                let checked = Some(self.check(k, c, parent));
+                Visited { key: k, read: read.into_iter().collect(), checked, borders: Some(border_record(c)) }
+            }
+            Err(e) => Visited { key: k, read: vec![format!("chunk {}: {e}", name(k))], checked: None, borders: None },
+        });
         out
     }
 
