@@ -47,6 +47,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         footprint: window(hf, n),
         delta_m: DELTA_M,
         parent: None,
+        keep_parent_edges: true,
         max_vertices: MAX_VERTICES,
         dividing_lines: true,
         split_insertion: false,

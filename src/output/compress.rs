@@ -1333,6 +1333,7 @@ mod tests {
                     footprint: tree.footprint(key),
                     delta_m: tree.delta_m[level],
                     parent,
+                    keep_parent_edges: true,
                     max_vertices: MAX_VERTICES,
                     dividing_lines: tree.splits(key.level),
                     split_insertion: false,
