@@ -7,12 +7,22 @@
 //! [`SurfaceLocator`] finds the parent triangle under a point; `verify` uses
 //! it to re-measure the targets from the files.
 
+use std::borrow::Cow;
+
 use crate::mesh::MeshVertex;
 
 /// Finds the triangle of a mesh under a point, with a bucket grid.
 pub struct SurfaceLocator<'m> {
     verts: &'m [MeshVertex],
     tris: &'m [[u32; 3]],
+    index: Cow<'m, LocatorIndex>,
+}
+
+/// A [`SurfaceLocator`]'s bucket grid, which owns nothing of the mesh: built
+/// once, it can be kept beside the mesh and lent to every locator over it
+/// (`ChunkMesh::locator`: the four children of a chunk ask for one each).
+#[derive(Clone, Debug)]
+pub struct LocatorIndex {
     origin: (f64, f64),
     cell: f64,
     nx: usize,
@@ -28,6 +38,19 @@ pub struct SurfaceLocator<'m> {
 impl<'m> SurfaceLocator<'m> {
     /// Indexes the given triangles.
     pub fn from_parts(verts: &'m [MeshVertex], tris: &'m [[u32; 3]]) -> Self {
+        SurfaceLocator { verts, tris, index: Cow::Owned(LocatorIndex::new(verts, tris)) }
+    }
+
+    /// A locator over `verts` and `tris` with `index`, which
+    /// [`LocatorIndex::new`] built over the same.
+    pub fn with_index(verts: &'m [MeshVertex], tris: &'m [[u32; 3]], index: &'m LocatorIndex) -> Self {
+        SurfaceLocator { verts, tris, index: Cow::Borrowed(index) }
+    }
+}
+
+impl LocatorIndex {
+    /// Buckets the given triangles' bounding boxes.
+    pub fn new(verts: &[MeshVertex], tris: &[[u32; 3]]) -> Self {
         let (mut x0, mut z0, mut x1, mut z1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
         for v in verts {
             x0 = x0.min(v.x);
@@ -72,7 +95,7 @@ impl<'m> SurfaceLocator<'m> {
                 fill[c] += 1;
             }
         }
-        SurfaceLocator { verts, tris, origin: (x0, z0), cell, nx, nz, starts, entries, boxes }
+        LocatorIndex { origin: (x0, z0), cell, nx, nz, starts, entries, boxes }
     }
 
     /// The entries of bucket `c`.
@@ -88,21 +111,25 @@ impl<'m> SurfaceLocator<'m> {
         let [lx, hx, lz, hz] = self.boxes[t as usize];
         x < lx - tol || x > hx + tol || z < lz - tol || z > hz + tol
     }
+}
 
+impl SurfaceLocator<'_> {
     /// The triangle containing (x, z): among those that contain it exactly,
     /// the one with the largest area (on an edge shared with a zero-width
     /// sliver, the sliver's plane means nothing); if rounding left it inside
     /// none, the nearest one within `tol` grid units. Returns it and the
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
-        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.cell, n);
-        let bucket = self.bucket(b(z, self.origin.1, self.nz) * self.nx + b(x, self.origin.0, self.nx));
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.index.cell, n);
+        let bucket = self.index.bucket(
+            b(z, self.index.origin.1, self.index.nz) * self.index.nx + b(x, self.index.origin.0, self.index.nx),
+        );
         let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
         let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
         // Only a triangle within the tolerance can be returned.
         let reach = tol.max(1e-6);
         for &t in bucket {
-            if self.far(t, x, z, reach) {
+            if self.index.far(t, x, z, reach) {
                 continue;
             }
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
@@ -127,12 +154,12 @@ impl<'m> SurfaceLocator<'m> {
     /// necessarily the one [`Self::locate`] picks).
     pub fn near(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
         let tol = tol.max(1e-6);
-        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.cell, n);
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.index.cell, n);
         let mut found: Vec<(u32, f64)> = Vec::new();
-        for bz in b(z - tol, self.origin.1, self.nz)..=b(z + tol, self.origin.1, self.nz) {
-            for bx in b(x - tol, self.origin.0, self.nx)..=b(x + tol, self.origin.0, self.nx) {
-                for &t in self.bucket(bz * self.nx + bx) {
-                    if self.far(t, x, z, tol) {
+        for bz in b(z - tol, self.index.origin.1, self.index.nz)..=b(z + tol, self.index.origin.1, self.index.nz) {
+            for bx in b(x - tol, self.index.origin.0, self.index.nx)..=b(x + tol, self.index.origin.0, self.index.nx) {
+                for &t in self.index.bucket(bz * self.index.nx + bx) {
+                    if self.index.far(t, x, z, tol) {
                         continue;
                     }
                     let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);

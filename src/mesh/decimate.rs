@@ -38,7 +38,7 @@ use robust::Coord;
 
 use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex, chain_ties};
-use crate::morph::{SurfaceLocator, barycentric};
+use crate::morph::barycentric;
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
@@ -1402,8 +1402,7 @@ fn finish(
             // inside one parent triangle, and is written if that one is.
             _ => match (spec.parent, grid.grid.filled.is_some()) {
                 (Some(p), true) => {
-                    let loc =
-                        parent_locator.get_or_insert_with(|| SurfaceLocator::from_parts(&p.vertices, &p.triangles));
+                    let loc = parent_locator.get_or_insert_with(|| p.locator());
                     let (cx, cz) = ((tri[0].x + tri[1].x + tri[2].x) / 3.0, (tri[0].z + tri[1].z + tri[2].z) / 3.0);
                     loc.locate(cx, cz, 1e-6).is_some_and(|(pt, _)| p.kept[pt as usize])
                 }
@@ -1429,6 +1428,7 @@ fn finish(
         max_error_near_cuts_m: max_err_cut,
         relief_m,
         scans: seeds,
+        locator_index: Default::default(),
     }
 }
 

@@ -52,9 +52,19 @@ pub struct ChunkMesh {
     /// a child that starts from an uncut triangle takes it instead of
     /// scanning the triangle again.
     pub scans: Vec<Option<decimate::TriangleScan>>,
+    /// The bucket grid of [`ChunkMesh::locator`], built on first use and
+    /// then shared (the four children's void checks each ask for one).
+    pub locator_index: std::sync::OnceLock<crate::morph::LocatorIndex>,
 }
 
 impl ChunkMesh {
+    /// Finds the triangle under a point, over every triangle (written or
+    /// not); its bucket grid is built once per mesh.
+    pub fn locator(&self) -> crate::morph::SurfaceLocator<'_> {
+        let index = self.locator_index.get_or_init(|| crate::morph::LocatorIndex::new(&self.vertices, &self.triangles));
+        crate::morph::SurfaceLocator::with_index(&self.vertices, &self.triangles, index)
+    }
+
     /// Whether this mesh already meets `delta_m` with room for f32 output.
     pub fn meets(&self, delta_m: f64) -> bool {
         let t = decimate::Targets::new(delta_m, self.relief_m);
