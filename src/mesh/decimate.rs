@@ -1554,6 +1554,30 @@ mod tests {
         assert!(chain.vertices.len() > 2000, "{} vertices", chain.vertices.len());
     }
 
+    /// A mesh's locator (the children's void checks use their parent's) is
+    /// indexed once and then lent: the same grid on every call, and the
+    /// same answers as a locator indexed afresh.
+    #[test]
+    fn a_meshs_locator_is_indexed_once_and_answers_as_a_fresh_one() {
+        let (w, h) = (65, 49);
+        let heights = rough(w, h);
+        let grid = Grid::new(w, h, &heights, None);
+        let mesh = build_chunk(&grid, &ChunkSpec::unconstrained(((0, 64), (0, 48)), 2.0)).unwrap();
+        assert!(mesh.locator_index.get().is_none(), "indexed before it was asked for");
+        let (first, second) = (mesh.locator(), mesh.locator());
+        assert!(mesh.locator_index.get().is_some(), "not indexed when first asked for");
+        let fresh = crate::morph::SurfaceLocator::from_parts(&mesh.vertices, &mesh.triangles);
+        let mut found = 0;
+        for k in 0..2000 {
+            let (x, z) = (f64::from(k % 97) * 0.661, f64::from(k / 97) * 2.31 + 0.1);
+            let want = fresh.locate(x, z, 1e-6);
+            assert_eq!(first.locate(x, z, 1e-6), want, "({x}, {z})");
+            assert_eq!(second.locate(x, z, 1e-6), want, "({x}, {z})");
+            found += usize::from(want.is_some());
+        }
+        assert!(found > 1900, "{found} points located");
+    }
+
     /// A fan of parent edges around a vertex a thousandth of a cell from the
     /// dividing line crosses it at points closer together than the quantize
     /// grid, which the file cannot hold apart. Each crossing moves onto the
