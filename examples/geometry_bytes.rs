@@ -16,7 +16,9 @@
 //! codec version the file uses, at `--level` (default: terrachunk's, 2 for
 //! version 0 and 3 for version 1); the
 //! last row, "sharing and padding", is what the file's actual bytes differ
-//! from that sum (negative where one shared stream packs tighter).
+//! from that sum (negative where one shared stream packs tighter). A last
+//! line divides the geometry by every vertex written, surface and skirt
+//! (a vertex of a shared set once): Ulrich's "unique output vertex".
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -65,6 +67,12 @@ fn main() {
         sum.geometry as f64 / v,
         sum.geometry as f64 / s
     );
+    println!(
+        "{} vertices written, surface and skirt ({:.3} per surface vertex): {:.2} bytes of geometry per written vertex",
+        sum.written_vertices,
+        sum.written_vertices as f64 / v,
+        sum.geometry as f64 / sum.written_vertices as f64
+    );
     println!("| images | {} | {:.2} | {:.2} |", sum.images, sum.images as f64 / v, sum.images as f64 / s);
     println!("| all files (tileset.json included) | {all} | {:.2} | {:.2} |", all as f64 / v, all as f64 / s);
 }
@@ -94,6 +102,9 @@ fn dir_bytes(dir: &Path) -> u64 {
 #[derive(Default)]
 struct Sizes {
     surface_vertices: u64,
+    /// Every vertex the files hold, surface and skirt, a shared one once
+    /// (Ulrich's "unique output vertex").
+    written_vertices: u64,
     geometry: u64,
     images: u64,
     streams: BTreeMap<String, u64>,
@@ -194,6 +205,7 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
         if role == "surface" {
             sum.surface_vertices += own.len() as u64;
         }
+        sum.written_vertices += own.len() as u64;
         let mut attributes: Vec<(String, usize)> =
             prim["attributes"].as_object().ok_or("no attributes")?.iter().map(|(k, a)| (k.clone(), num(a))).collect();
         if let Some(t) = prim["targets"][0]["POSITION"].as_u64() {
