@@ -509,18 +509,15 @@ impl<'g> Estimate<'g> {
         if let Some(d) = self.by_k[set][k] {
             return d;
         }
-        let chain = match self.chains[set].take() {
-            Some((finest, tins)) if finest > k => Some((finest, tins)),
-            Some(c) => {
-                // Coarser than the chain's top: a TIN of its own.
-                self.chains[set] = Some(c);
-                let (d, _) = self.measure(k, set, None);
-                self.by_k[set][k] = Some(d);
-                return d;
-            }
-            None => None,
-        };
-        let (mut finest, mut tins) = match chain {
+        // Everything from the chain's finest δ up to its top is measured, so
+        // a δ not yet measured lies either below the chain, which continues,
+        // or above its top: a TIN of its own.
+        if self.chains[set].as_ref().is_some_and(|c| c.0 < k) {
+            let (d, _) = self.measure(k, set, None);
+            self.by_k[set][k] = Some(d);
+            return d;
+        }
+        let (mut finest, mut tins) = match self.chains[set].take() {
             Some(c) => c,
             None => {
                 let start = k.max(self.top);
