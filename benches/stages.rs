@@ -15,7 +15,7 @@ use terrachunk::config::VertexCache;
 use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::Heightfield;
 use terrachunk::mesh::ChunkMesh;
-use terrachunk::mesh::decimate::{ChunkSpec, Grid, MAX_VERTICES, build_chunk};
+use terrachunk::mesh::decimate::{ChunkSpec, Grid, build_chunk};
 use terrachunk::output::compress::NormalEncoding;
 use terrachunk::output::gltf::{GlbContext, encode_glb};
 use terrachunk::pipeline::assemble;
@@ -48,7 +48,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         delta_m: DELTA_M,
         parent: None,
         keep_parent_edges: true,
-        max_vertices: MAX_VERTICES,
+        max_vertices: terrachunk::config::MAX_CHUNK_VERTICES as usize,
         dividing_lines: true,
         split_insertion: false,
         cancel: None,

@@ -147,6 +147,11 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
                 let data = &bin[num(&m["byteOffset"])..][..num(&m["byteLength"])];
                 let (count, stride) = (num(&m["count"]), num(&m["byteStride"]));
                 let bytes = match m["mode"].as_str() {
+                    Some("TRIANGLES") if stride == 4 => meshopt::decode_index_buffer::<u32>(data, count)
+                        .map_err(|e| format!("{e:?}"))?
+                        .into_iter()
+                        .flat_map(u32::to_le_bytes)
+                        .collect(),
                     Some("TRIANGLES") => meshopt::decode_index_buffer::<u16>(data, count)
                         .map_err(|e| format!("{e:?}"))?
                         .into_iter()
@@ -169,14 +174,21 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
         let acc = &j["accessors"][num(&prim["indices"])];
         let view = &views[num(&acc["bufferView"])];
         let (offset, count) = (num(&acc["byteOffset"]), num(&acc["count"]));
-        let idx: Vec<u32> = view.bytes[offset..offset + 2 * count]
-            .chunks_exact(2)
-            .map(|b| u32::from(u16::from_le_bytes([b[0], b[1]])))
+        let width = if num(&acc["componentType"]) == 5125 { 4 } else { 2 };
+        let idx: Vec<u32> = view.bytes[offset..offset + width * count]
+            .chunks_exact(width)
+            .map(|b| {
+                if width == 4 {
+                    u32::from_le_bytes([b[0], b[1], b[2], b[3]])
+                } else {
+                    u32::from(u16::from_le_bytes([b[0], b[1]]))
+                }
+            })
             .collect();
         // What this primitive's triangles add to the index stream after the
         // primitives before it (the codec carries its state across them).
         let bytes = match view.version {
-            None => 2 * count,
+            None => width * count,
             Some(_) => {
                 let encoded = |idx: &[u32]| -> Result<usize, String> {
                     let vertices = idx.iter().max().map_or(0, |&m| m as usize + 1);

@@ -26,12 +26,21 @@ pub struct Config {
     /// file's own (1 m for files without a georeference).
     pub spacing_m: Option<[f64; 2]>,
     /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=4096.
-    /// Up to 250 always works (a 251 × 251 chunk at full density plus skirts
-    /// still fits u16 indices); a wider leaf that needs more than 65 535
-    /// vertices to meet `max_error_m` stops the build with an error that
-    /// says so. Default: unset, chosen from the data (the shallowest tree
-    /// whose chunks hold at most 8 000 vertices on average).
+    /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (506 at
+    /// the default: a 507 × 507 chunk at full density, plus the cut points
+    /// on its borders, still fits); a wider leaf that needs more than
+    /// `max_chunk_vertices` to meet `max_error_m` stops the build with an
+    /// error that says so. Default: unset, chosen from the data (the
+    /// shallowest tree whose chunks hold at most 8 000 vertices on average).
     pub leaf_cells: Option<u32>,
+    /// Most surface vertices one chunk may hold. A coarse chunk that would
+    /// need more to meet its δ (rough ground against a small error) makes
+    /// the build add refine levels: levels at the bottom that keep the
+    /// leaves' footprint and halve δ, so that every δ above doubles and the
+    /// top chunks get sparse. A chunk of more than 65 535 vertices has u32
+    /// indices, the others u16. Range: 65 535..=16 777 215. Default
+    /// [`MAX_CHUNK_VERTICES`] (README, "Settings").
+    pub max_chunk_vertices: u32,
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default: unset, which means `strip`
     /// with `compress = "meshopt"` and `fast` otherwise
@@ -83,6 +92,30 @@ pub struct Config {
     /// as earlier versions wrote them (worst 1.14°)
     /// ([`Config::normal_encoding`]). Unused with `compress = "none"`.
     pub normal_bits: Option<u32>,
+}
+
+/// The default [`Config::max_chunk_vertices`]: 2^18 − 1. Room for the few
+/// dense top chunks of rough ground at a small error (California's root at
+/// 1 m holds about 76 000 vertices, Fuji's at 0.25 m 78 000), which under
+/// the u16 limit of 65 535 cost two and one refine levels: more levels,
+/// each binding the finest surface with its edges, and three times the
+/// chunks at the leaves' footprint. A chunk this size is still one file of
+/// about 12 MB in f32 (`compress = "none"`), 2 MB with meshopt.
+pub const MAX_CHUNK_VERTICES: u32 = 262_143;
+
+/// The widest leaf, in cells, that holds every sample of its footprint and
+/// the cut points on its four borders (up to about 10 per border cell, 2.5
+/// on each) within `max_vertices`: 250 for 65 535, 506 for the default.
+pub fn dense_leaf_cells(max_vertices: u32) -> u32 {
+    let fits = |c: u64| (c + 1) * (c + 1) + 10 * c <= u64::from(max_vertices);
+    let mut c = (f64::from(max_vertices).sqrt() as u64).saturating_sub(1);
+    while c > 0 && !fits(c) {
+        c -= 1;
+    }
+    while fits(c + 1) {
+        c += 1;
+    }
+    c as u32
 }
 
 /// The octahedral bits of `meshopt-v1` normals: the fewest whose decoded
@@ -172,6 +205,7 @@ impl Default for Config {
             vertical_scale: 1.0,
             spacing_m: None,
             leaf_cells: None,
+            max_chunk_vertices: MAX_CHUNK_VERTICES,
             vertex_cache: None,
             complete_tree: false,
             max_texture_px: 512,
@@ -269,6 +303,13 @@ impl Config {
             && !(2..=4096).contains(&c)
         {
             return bad("leaf_cells", c.to_string(), "must be within 2..=4096 cells");
+        }
+        if !(65_535..=16_777_215).contains(&self.max_chunk_vertices) {
+            return bad(
+                "max_chunk_vertices",
+                self.max_chunk_vertices.to_string(),
+                "must be within 65535..=16777215 vertices",
+            );
         }
         if !(2..=16384).contains(&self.max_texture_px) {
             return bad("max_texture_px", self.max_texture_px.to_string(), "must be within 2..=16384 texels");

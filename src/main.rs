@@ -69,6 +69,11 @@ enum Command {
         /// fewer leaf triangles but cull in bigger pieces (README, "Chunk size").
         #[arg(long)]
         leaf_cells: Option<u32>,
+        /// Most surface vertices one chunk may hold, 65535..=16777215
+        /// [default: 262143]; denser coarse chunks make the build add
+        /// refine levels. Chunks over 65 535 vertices get u32 indices.
+        #[arg(long)]
+        max_chunk_vertices: Option<u32>,
         /// Build every chunk to the deepest level, even below one that already
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
@@ -225,6 +230,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             max_texture_px,
             normal_map,
             leaf_cells,
+            max_chunk_vertices,
             complete_tree,
             compress,
             force,
@@ -271,6 +277,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if leaf_cells.is_some() {
                 cfg.leaf_cells = leaf_cells;
             }
+            if let Some(v) = max_chunk_vertices {
+                cfg.max_chunk_vertices = v;
+            }
             cfg.complete_tree |= complete_tree;
             if let Some(c) = compress {
                 cfg.compress = match c {
@@ -290,7 +299,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             match build(&opts) {
                 Ok(r) => {
-                    print_summary(&r, &out);
+                    print_summary(&r, &out, opts.config.max_chunk_vertices);
                     if let Some(p) = report {
                         let json = serde_json::to_vec_pretty(&r)?;
                         std::fs::write(&p, json).with_context(|| format!("{}: cannot write report", p.display()))?;
@@ -507,7 +516,7 @@ fn print_bench(rows: &[bench::table::Row]) {
     }
 }
 
-fn print_summary(r: &Report, out: &std::path::Path) {
+fn print_summary(r: &Report, out: &std::path::Path, max_chunk_vertices: u32) {
     println!(
         "{} × {} samples ({} valid), spacing {:.3} × {:.3} m",
         r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]
@@ -590,8 +599,9 @@ fn print_summary(r: &Report, out: &std::path::Path) {
     }
     if r.refine_levels > 0 {
         println!(
-            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than 65 535 vertices ({})",
+            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than {} vertices (max_chunk_vertices; {})",
             r.refine_levels,
+            max_chunk_vertices,
             match (r.refine_estimated, r.refine_levels - r.refine_estimated) {
                 (_, 0) => "estimated from the data, not built".to_string(),
                 (0, _) => format!("found by attempts that took {:.1} s", r.discarded_s),

@@ -15,11 +15,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::chunk::{Chunk, Part};
-use crate::config::{Config, ConfigError};
+use crate::config::{Config, ConfigError, dense_leaf_cells};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, MAX_VERTICES, build_chunk};
+use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
@@ -58,7 +58,7 @@ pub enum BuildError {
     /// The output directory exists and `--force` was not given.
     #[error("{0}: already exists (use --force to replace it)")]
     OutputExists(PathBuf),
-    /// A chunk could not meet its δ within u16 indices even with many refine levels.
+    /// A chunk could not meet its δ within `max_chunk_vertices` even with many refine levels.
     #[error(transparent)]
     Mesh(#[from] MeshError),
     /// The texture image could not be used, or a tile could not be encoded.
@@ -82,16 +82,18 @@ pub enum BuildError {
         /// δ(L), metres.
         delta_m: f64,
     },
-    /// A `leaf_cells` setting above [`DENSE_LEAF_CELLS`] left a leaf that
-    /// cannot meet its δ within u16 indices (refine levels keep the leaf's
-    /// footprint, so they cannot help).
+    /// A `leaf_cells` setting above [`dense_leaf_cells`] left a leaf that
+    /// cannot meet its δ within `max_chunk_vertices` (refine levels keep
+    /// the leaf's footprint, so they cannot help).
     #[error(
-        "leaf_cells = {leaf_cells}: {source}; leaves of at most {DENSE_LEAF_CELLS} cells always fit \
+        "leaf_cells = {leaf_cells}: {source}; leaves of at most {dense} cells always fit \
          (or leave leaf_cells unset to choose from the data)"
     )]
     LeafTooWide {
         /// The setting.
         leaf_cells: u32,
+        /// The widest leaf that always fits, [`dense_leaf_cells`].
+        dense: u32,
         /// The chunk that did not fit.
         source: MeshError,
     },
@@ -199,14 +201,14 @@ pub struct Report {
     /// Threads used.
     pub threads: usize,
     /// Levels added at the bottom (same footprint, half the δ) so that the
-    /// coarser chunks fit u16 indices.
+    /// coarser chunks fit `max_chunk_vertices`.
     pub refine_levels: u32,
     /// Of `refine_levels`, those taken from the estimate alone (a top chunk
     /// surely too dense with fewer: [`Estimate::refine_levels`]), not from
     /// an attempt.
     pub refine_estimated: u32,
     /// Wall seconds of the attempts with fewer refine levels that stopped at
-    /// a chunk too dense for u16 indices (part of `seconds.chunks`).
+    /// a chunk too dense for `max_chunk_vertices` (part of `seconds.chunks`).
     pub discarded_s: f64,
     /// The bound on a deepest-level chunk's width, in cells (set, or chosen
     /// from the data).
@@ -346,7 +348,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     };
     let t_source = t.elapsed();
     let t = Instant::now();
-    // A coarse chunk that cannot meet its δ in 65 535 vertices (noise, huge
+    // A coarse chunk that cannot meet its δ in `max_chunk_vertices` (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
     // A wide leaf's texture may hit `max_texture_px` only where its texels
@@ -359,7 +361,9 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
         by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
     });
-    let mut estimate = Estimate::new(&grid, opts.config.max_error_m);
+    let max_vertices = opts.config.max_chunk_vertices as usize;
+    let dense = dense_leaf_cells(opts.config.max_chunk_vertices);
+    let mut estimate = Estimate::new(&grid, opts.config.max_error_m, max_vertices);
     let mut leaf_cells = match opts.config.leaf_cells {
         Some(c) => c,
         None => estimate.leaf_cells(widest_leaf),
@@ -386,8 +390,8 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             }
             // Leaves wider than a dense leaf may be: refine levels keep their
             // footprint and cannot help, narrower leaves do.
-            Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > DENSE_LEAF_CELLS => {
-                leaf_cells = estimate.leaf_cells(DENSE_LEAF_CELLS);
+            Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > dense => {
+                leaf_cells = estimate.leaf_cells(dense);
                 refine = estimate.refine_levels(leaf_cells);
                 estimated = refine;
             }
@@ -395,9 +399,9 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             // level always has the leaves' footprint and δ, so refine levels
             // cannot help.
             Err(BuildError::Mesh(source @ MeshError::TooDense { level, .. }))
-                if leaf_cells > DENSE_LEAF_CELLS && level == tree.depth() =>
+                if leaf_cells > dense && level == tree.depth() =>
             {
-                return Err(BuildError::LeafTooWide { leaf_cells, source });
+                return Err(BuildError::LeafTooWide { leaf_cells, dense, source });
             }
             Err(BuildError::Mesh(_)) if refine < MAX_REFINE_LEVELS => refine += 1,
             Err(e) => return Err(e),
@@ -409,10 +413,6 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
 /// to the data: the top of the 1 000–8 000 that keeps draw calls few and
 /// chunks small enough to cull and page finely.
 pub const CHUNK_VERTICES: f64 = 8000.0;
-
-/// Widest leaf, in cells, that fits u16 indices at full sample density
-/// (251² samples, plus the cut points on its lines).
-pub const DENSE_LEAF_CELLS: u32 = 250;
 
 /// Vertex densities of greedy TINs on sample windows, by δ: what the leaf
 /// width and the refine levels are chosen from before anything is built.
@@ -428,6 +428,8 @@ pub const DENSE_LEAF_CELLS: u32 = 250;
 pub struct Estimate<'g> {
     grid: &'g Grid<'g>,
     max_error_m: f64,
+    /// `max_chunk_vertices`.
+    max_vertices: usize,
     /// Up to 4 × 4 windows of 64² cells, then (for a close call) up to
     /// 8 × 8 of 32² cells: the same samples, spread over twice as many places.
     windows: [Vec<(Span, Span, usize)>; 2],
@@ -447,7 +449,7 @@ pub struct Estimate<'g> {
 
 impl<'g> Estimate<'g> {
     /// Chooses the windows; measures nothing yet.
-    pub fn new(grid: &'g Grid<'g>, max_error_m: f64) -> Self {
+    pub fn new(grid: &'g Grid<'g>, max_error_m: f64, max_vertices: usize) -> Self {
         let windows = [(4, 64), (8, 32)].map(|(most, cells): (usize, usize)| {
             let cells = cells.min(grid.width - 1).min(grid.height - 1);
             let starts = |n: usize| {
@@ -472,6 +474,7 @@ impl<'g> Estimate<'g> {
         Estimate {
             grid,
             max_error_m,
+            max_vertices,
             windows,
             by_k: [vec![None; 32], vec![None; 32]],
             chains: [None, None],
@@ -582,9 +585,9 @@ impl<'g> Estimate<'g> {
     /// to 1.06 times the triangles of one unconstrained TIN. A tree whose
     /// estimate is within [`CLOSE_CALL`] of the bound is measured again on
     /// up to 8 × 8 windows of 32² cells, which decides. Leaves wider
-    /// than [`DENSE_LEAF_CELLS`] are chosen only up to `widest` cells and
-    /// where the densest window says they hold under half of 65 535
-    /// vertices (see [`build_into`]).
+    /// than [`dense_leaf_cells`] are chosen only up to `widest` cells and
+    /// where the densest window says they hold under half of
+    /// `max_chunk_vertices` (see [`build_into`]).
     pub fn leaf_cells(&mut self, widest: u32) -> u32 {
         let grid = self.grid;
         let valid_share = self.valid / (grid.width * grid.height) as f64;
@@ -592,10 +595,10 @@ impl<'g> Estimate<'g> {
         let candidates = leaf_candidates(grid, self.max_error_m);
         let deepest = *candidates.last().expect("one candidate");
         for &c in &candidates {
-            let fits = c <= DENSE_LEAF_CELLS
+            let fits = c <= dense_leaf_cells(self.max_vertices as u32)
                 || c <= widest && {
                     let side = f64::from(c + 1);
-                    self.density(0).densest * side * side <= MAX_VERTICES as f64 / 2.0
+                    self.density(0).densest * side * side <= self.max_vertices as f64 / 2.0
                 };
             if !fits {
                 continue;
@@ -646,8 +649,8 @@ impl<'g> Estimate<'g> {
     }
 
     /// The refine levels to try first for leaves of `leaf_cells`: the fewest
-    /// under which no chunk wider than 65 535 samples is estimated at more
-    /// than [`SURELY_TOO_DENSE`] times 65 535 vertices. Such a chunk is
+    /// under which no chunk of more samples than `max_chunk_vertices` is
+    /// estimated at more than [`SURELY_TOO_DENSE`] times as many vertices. Such a chunk is
     /// sure enough to fail that building it to find out (2.3 s for each of
     /// California's two roots at 1 m) is skipped; a closer call is still
     /// built and decides (see [`build_into`]).
@@ -656,12 +659,12 @@ impl<'g> Estimate<'g> {
         for refine in 0..MAX_REFINE_LEVELS {
             let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, leaf_cells, refine);
             let levels = tree.delta_m.len();
-            let limit = SURELY_TOO_DENSE * MAX_VERTICES as f64;
+            let limit = SURELY_TOO_DENSE * self.max_vertices as f64;
             let mut too_dense = Vec::new();
             for l in 0..levels {
                 let big = |s: &Span| (s.1 - s.0 + 1) as usize;
                 if tree.xs[l].iter().map(big).max().unwrap_or(0) * tree.zs[l].iter().map(big).max().unwrap_or(0)
-                    <= MAX_VERTICES
+                    <= self.max_vertices
                 {
                     continue;
                 }
@@ -701,7 +704,7 @@ fn leaf_candidates(grid: &Grid, max_error_m: f64) -> Vec<u32> {
     if candidates.is_empty() { vec![32] } else { candidates }
 }
 
-/// How far over 65 535 vertices a chunk's estimate must be before it is
+/// How far over `max_chunk_vertices` a chunk's estimate must be before it is
 /// taken as failing without building it. The estimate has been 11 % over
 /// the built count (Fuji's root at 20 and 40 m) and far under it (74 % under
 /// at California's 256 m root: windows of 64 cells see little of a coarse
@@ -869,8 +872,9 @@ fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError>
 }
 
 /// The most chunks a level may have to be built level-first
-/// ([`Run::all_chunks`]): at most this many meshes of up to 65 535 vertices
-/// are kept at once, about 150 MB.
+/// ([`Run::all_chunks`]): at most this many meshes of up to
+/// `max_chunk_vertices` are kept at once (on noise, about 150 MB at 65 535
+/// and 600 MB at the default; real terrain's top chunks are far sparser).
 const LEVEL_FIRST_CHUNKS: usize = 16;
 
 /// What one chunk adds to the report and the index.
@@ -933,7 +937,8 @@ impl Run<'_> {
             .take_while(|&l| {
                 let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
                 let l = l as usize;
-                wx * wz > MAX_VERTICES && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+                wx * wz > self.opts.config.max_chunk_vertices as usize
+                    && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
             })
             .count();
         let mut done = Vec::new();
@@ -1064,7 +1069,7 @@ impl Run<'_> {
                 delta_m: delta,
                 parent,
                 keep_parent_edges: true,
-                max_vertices: MAX_VERTICES,
+                max_vertices: self.opts.config.max_chunk_vertices as usize,
                 dividing_lines: tree.splits(level),
                 split_insertion: tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS,
                 cancel: Some(&self.failed),

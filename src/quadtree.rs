@@ -9,8 +9,9 @@
 //! `(L, x, y)` is just the index of its column and row interval at level L.
 //!
 //! Level `D` is the first at which no chunk is wider than `leaf_cells`, so a
-//! leaf at full sample density still fits u16 indices. Where a coarse chunk
-//! cannot meet its δ within 65 535 vertices (rough ground against a small
+//! leaf at full sample density still fits `max_chunk_vertices` (for leaves
+//! of at most `config::dense_leaf_cells`). Where a coarse chunk cannot meet
+//! its δ within `max_chunk_vertices` (rough ground against a small
 //! error), the planner adds levels at the bottom that keep their parent's
 //! footprint and only halve δ: every δ above doubles, the leaves keep their
 //! size, and the pyramid still reaches one top chunk. δ(L) = max_error·2^(D−L)

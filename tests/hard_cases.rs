@@ -12,7 +12,7 @@
 //! | flat 0 m and 8848 m | one chunk, ≤ 8 triangles, exact |
 //! | 10 km one-sample spike (plane; chunk corner, border, grid corner) | exact at the leaf; every level keeps the peak |
 //! | 500 m / 10 km cliffs: diagonals, on a chunk border | exact alone; three levels with shared borders on hills |
-//! | ±1000 m checkerboard and white noise | exact; 257² noise takes refine levels |
+//! | ±1000 m checkerboard and white noise | exact; 257² noise takes refine levels (chunks of at most 65 535 vertices) |
 //! | 1e6 m heights with 1/16 m relief (float32) / 1 cm relief (text) | exact / refused: f32 cannot hold it |
 //! | 1 mm, 10 km and 1 mm × 10 km spacing | verifies; boxes span the grid |
 //! | 2 × 300 and 300 × 2 strips | 299 one-cell chunks, exact |
@@ -49,6 +49,15 @@ struct Built {
 
 fn config(max_error_m: f64, leaf_cells: u32) -> Config {
     Config { max_error_m, leaf_cells: Some(leaf_cells), ..Config::default() }
+}
+
+/// The smallest `max_chunk_vertices` (what u16 indices hold): the refine
+/// levels and leaf-width fallbacks below show on small grids with it.
+const U16_CHUNKS: u32 = 65_535;
+
+/// `config` with chunks of at most [`U16_CHUNKS`] vertices.
+fn u16_config(max_error_m: f64, leaf_cells: u32) -> Config {
+    Config { max_chunk_vertices: U16_CHUNKS, ..config(max_error_m, leaf_cells) }
 }
 
 /// Builds `dem` and runs every check on the result.
@@ -181,11 +190,12 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
     assert_eq!(b.report.levels.len(), 1);
     assert!(leaf(&b).max_error_m <= 0.01);
     assert!(leaf(&b).vertices * 100 >= 99 * 129 * 129, "noise keeps its samples: {}", leaf(&b).vertices);
-    // 257² samples are too many for one u16-indexed chunk at full density:
-    // the planner adds refine levels (same footprints, δ doubling upwards)
-    // until the top chunk fits, and the leaves (129² samples) keep them all.
+    // 257² samples are too many for one chunk of 65 535 vertices at full
+    // density: the planner adds refine levels (same footprints, δ doubling
+    // upwards) until the top chunk fits, and the leaves (129² samples) keep
+    // them all.
     let dem = write_asc(tmp.path(), "big.asc", 257, 257, noise);
-    let b = survives(&dem, config(0.5, 128));
+    let b = survives(&dem, u16_config(0.5, 128));
     assert!(b.report.refine_levels > 0, "the top chunk cannot hold 257² vertices");
     assert!(b.report.discarded_s > 0.0, "the attempts with fewer levels are reported");
     let deepest = leaf(&b);
@@ -193,7 +203,52 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
     assert!(deepest.vertices * 100 >= 99 * deepest.chunks * 129 * 129, "{:#?}", b.report.levels);
 }
 
+/// A chunk of more than 65 535 vertices (±1000 m of noise over 301²
+/// samples in one 300-cell leaf: every sample a vertex) is written with u32
+/// indices in every `compress` mode and passes every check, where a build
+/// limited to what u16 indices hold must refuse that leaf. Over 601 × 301
+/// samples of the same noise in 150-cell leaves, the default
+/// `max_chunk_vertices` builds the top chunk at full density where the u16
+/// limit needs refine levels.
+#[test]
+fn a_chunk_denser_than_u16_indices_is_written_with_u32_indices() {
+    use terrachunk::config::Compress;
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "noise.asc", 301, 301, white_noise);
+    for compress in [Compress::None, Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1] {
+        // `survives` reads every number with the gltf crate, which knows no
+        // quantized file; `verify` decodes them, the validator reads them.
+        let out = tmp.path().join(format!("{compress:?}"));
+        let report = build(&with_config(&dem, &out, Config { compress, ..config(0.5, 300) })).unwrap();
+        verified(&out);
+        assert_eq!(khronos_validate(&out)["files"], 1, "{compress:?}");
+        assert_eq!(report.levels.len(), 1, "{compress:?}");
+        let vertices = report.levels[0].vertices;
+        assert!(vertices * 100 >= 99 * 301 * 301 && vertices > 65_535, "{compress:?}: {vertices} vertices");
+        let glb = std::fs::read(out.join("tiles/0/0/0.glb")).unwrap();
+        let j: serde_json::Value = serde_json::from_slice(&gltf::Glb::from_slice(&glb).unwrap().json).unwrap();
+        // The surface's; the skirt's own vertex set (with `none`) is small
+        // enough for u16.
+        let surface = &j["meshes"][0]["primitives"][0];
+        assert_eq!(surface["extras"]["role"], "surface");
+        let indices = &j["accessors"][surface["indices"].as_u64().unwrap() as usize];
+        assert_eq!(indices["componentType"], 5125, "{compress:?}: u32 indices");
+    }
+    let out = tmp.path().join("u16");
+    let small = Config { max_chunk_vertices: U16_CHUNKS, ..config(0.5, 300) };
+    let err = build(&with_config(&dem, &out, small)).unwrap_err().to_string();
+    assert!(err.contains("leaves of at most 250 cells always fit"), "{err}");
+    assert!(!out.exists());
+
+    let dem = write_asc(tmp.path(), "wide.asc", 301, 601, white_noise);
+    let b = survives(&dem, config(0.5, 200));
+    assert_eq!(b.report.refine_levels, 0, "the 601 × 301 top chunk fits");
+    let b = survives(&dem, u16_config(0.5, 200));
+    assert!(b.report.refine_levels > 0, "{:#?}", b.report.levels);
+}
+
 /// A top chunk whose sample windows say it surely cannot fit 65 535 vertices
+/// (`max_chunk_vertices`)
 /// (here: ±10 m of noise over 513² samples, 4 times what a chunk can hold, against 1 m) is not
 /// built to find out: the refine levels it needs come from the estimate,
 /// no attempt is discarded, and the result still verifies. The estimate
@@ -204,13 +259,13 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
 fn a_top_chunk_surely_too_dense_is_not_built_to_find_out() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = write_asc(tmp.path(), "noise.asc", 513, 513, |i, j| white_noise(i, j) / 100.0);
-    let b = survives(&dem, config(1.0, 128));
+    let b = survives(&dem, u16_config(1.0, 128));
     assert!(b.report.refine_estimated > 0, "the estimate saw the noise: {:#?}", b.report.levels);
     assert_eq!(b.report.refine_levels, b.report.refine_estimated, "no attempt was built and discarded");
     assert!(leaf(&b).max_error_m <= 1.0);
 }
 
-/// Chunks that fail (too dense for u16 indices) stop the others of their
+/// Chunks that fail (too dense for `max_chunk_vertices`) stop the others of their
 /// build early, and the build starts again with a refine level: whichever
 /// chunk fails first and whatever was cancelled, the output is the same bytes
 /// at 1 and 2 threads.
@@ -225,7 +280,7 @@ fn restarted_builds_are_the_same_bytes_at_any_thread_count() {
     let files: Vec<_> = [1, 2]
         .map(|threads| {
             let out = tmp.path().join(format!("out{threads}"));
-            let report = build(&with_config(&dem, &out, Config { threads, ..config(0.5, 80) })).unwrap();
+            let report = build(&with_config(&dem, &out, Config { threads, ..u16_config(0.5, 80) })).unwrap();
             assert!(report.refine_levels > 0, "{threads} threads: the top chunks are too dense at first");
             assert!(
                 report.refine_levels > report.refine_estimated,
@@ -635,20 +690,21 @@ fn write_tiff_f32(path: &Path, w: u32, h: u32, data: &[f32], nodata: Option<&str
 // ------------------------------------------------------------ leaf sizes
 
 /// Left to the data, leaves are as wide as chunks averaging at most 8 000
-/// vertices allow, past the 250 cells a leaf at full density may have:
-/// fewer levels nest fewer constraints into the finest surface.
+/// vertices allow, past the 250 cells a leaf at full density may have in
+/// 65 535 vertices: fewer levels nest fewer constraints into the finest
+/// surface.
 #[test]
 fn sparse_ground_gets_wide_leaves_and_few_levels() {
     let tmp = tempfile::tempdir().unwrap();
     let dem = write_asc(tmp.path(), "hills.asc", 601, 601, hills);
-    let b = survives(&dem, Config { max_error_m: 20.0, ..Config::default() });
+    let b = survives(&dem, Config { max_error_m: 20.0, max_chunk_vertices: U16_CHUNKS, ..Config::default() });
     assert!(b.report.leaf_cells > 250, "leaves of {} cells", b.report.leaf_cells);
     assert!(b.report.levels.len() <= 2, "{:#?}", b.report.levels);
     assert!(leaf(&b).max_error_m <= 20.0);
 }
 
 /// Wide leaves chosen from sample windows that all missed a rough patch: the
-/// leaf over the patch needs more than 65 535 vertices, so the build starts
+/// leaf over the patch needs more than 65 535 vertices (`max_chunk_vertices`), so the build starts
 /// again with leaves no wider than a dense leaf may be, and succeeds.
 #[test]
 fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
@@ -659,7 +715,7 @@ fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
         if (100..400).contains(&i) && (100..400).contains(&j) { white_noise(i, j) / 100.0 } else { 0.0 }
     };
     let dem = write_asc(tmp.path(), "patch.asc", 1500, 1500, rough);
-    let b = survives(&dem, Config { max_error_m: 1.0, ..Config::default() });
+    let b = survives(&dem, Config { max_error_m: 1.0, max_chunk_vertices: U16_CHUNKS, ..Config::default() });
     assert!(b.report.leaf_cells <= 250, "leaves of {} cells", b.report.leaf_cells);
     assert!(b.report.discarded_s > 0.0, "the wide attempt was discarded");
     assert!(leaf(&b).max_error_m <= 1.0);
@@ -667,7 +723,7 @@ fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
 
 /// A user may ask for leaves wider than 250 cells (fewer levels, fewer
 /// nested lines): sparse ground builds with them; where a chosen wide leaf
-/// needs more than 65 535 vertices, refine levels cannot help (they keep the
+/// needs more than 65 535 vertices (`max_chunk_vertices`), refine levels cannot help (they keep the
 /// footprint), so the build stops with exit 2, says which setting to change,
 /// and leaves nothing behind.
 #[test]
@@ -680,7 +736,7 @@ fn a_chosen_wide_leaf_builds_on_sparse_ground_and_is_refused_on_noise() {
 
     let dem = write_asc(tmp.path(), "noise.asc", 301, 301, white_noise);
     let cfg = tmp.path().join("wide.toml");
-    std::fs::write(&cfg, "max_error_m = 0.5\nleaf_cells = 300\n").unwrap();
+    std::fs::write(&cfg, "max_error_m = 0.5\nleaf_cells = 300\nmax_chunk_vertices = 65535\n").unwrap();
     let out = tmp.path().join("out");
     let args = ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--config", cfg.to_str().unwrap()];
     assert_bad_input(&args, &out, "leaf_cells = 300");

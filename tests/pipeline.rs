@@ -204,6 +204,7 @@ fn each_glb_carries_the_morph_target_contract() {
         assert!(roles.iter().all(|r| ["surface", "skirt"].contains(r)));
         for p in mesh["primitives"].as_array().unwrap() {
             assert_eq!(p["targets"].as_array().unwrap().len(), 1);
+            // u16 indices: every chunk of this build holds fewer than 65 535 vertices.
             assert_eq!(j["accessors"][p["indices"].as_u64().unwrap() as usize]["componentType"], 5123, "u16 indices");
         }
         let t = j["nodes"][0]["translation"].as_array().unwrap();

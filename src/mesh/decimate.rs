@@ -125,8 +125,10 @@ impl<'a> Window<'a> {
     }
 }
 
-/// Most vertices one u16-indexed primitive may hold (65 535 is primitive restart).
-pub const MAX_VERTICES: usize = 65_535;
+/// Most vertices one u16-indexed vertex set may hold (index 65 535 is the
+/// primitive restart value of some APIs, so it is never written): a chunk
+/// with more is written with u32 indices.
+pub const U16_INDEXED: usize = 65_535;
 
 /// Everything `build_chunk` needs besides the heights.
 pub struct ChunkSpec<'p> {
@@ -142,7 +144,7 @@ pub struct ChunkSpec<'p> {
     /// exact. Off only where `parent` is a warm start, not a parent: the
     /// sample windows [`ChunkSpec::continued`] refines to a smaller δ.
     pub keep_parent_edges: bool,
-    /// Most vertices allowed ([`MAX_VERTICES`] for u16 output).
+    /// Most vertices allowed (`Config::max_chunk_vertices` in a build).
     pub max_vertices: usize,
     /// Add the dividing lines (the children's borders). Off only for the
     /// unconstrained single-TIN baseline the benchmarks compare against.
@@ -1477,7 +1479,7 @@ mod tests {
             delta_m,
             parent,
             keep_parent_edges: true,
-            max_vertices: MAX_VERTICES,
+            max_vertices: crate::config::MAX_CHUNK_VERTICES as usize,
             dividing_lines: true,
             split_insertion: split,
             cancel: None,

@@ -127,7 +127,7 @@ pub fn dem_normal(grid: &decimate::Grid, spacing_m: [f64; 2], x: f64, z: f64) ->
 /// What can stop the mesher.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
-    /// A chunk needs more vertices than u16 indices allow to meet its δ.
+    /// A chunk needs more vertices than `max_chunk_vertices` allows to meet its δ.
     #[error("chunk {level}/{x}/{y} needs more than {limit} vertices to stay within {delta_m} m")]
     TooDense {
         /// Level.

@@ -136,7 +136,7 @@ use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::mesh::decimate::Grid;
 use crate::morph::points_near_triangle;
-use crate::output::gltf::PrimData;
+use crate::output::gltf::{PrimData, index_width};
 use crate::quadtree::ChunkTree;
 
 /// The largest u16.
@@ -529,7 +529,7 @@ pub struct Stream {
     view: usize,
     count: usize,
     stride: usize,
-    /// Index data (u16 triangles) rather than vertex attributes.
+    /// Index data (u16 or u32 triangles) rather than vertex attributes.
     triangles: bool,
     /// Vertices the indices refer to (index streams only).
     vertices: usize,
@@ -766,7 +766,7 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
 ///   the two octahedral coordinates (which its vertex codec packs tighter
 ///   than three components), `quantize` what the filter decodes them to, so
 ///   both read alike;
-/// - the triangles, u16. meshoptimizer's index codec keeps the triangles'
+/// - the triangles, u16 (u32 for a set of more than 65 535 vertices). meshoptimizer's index codec keeps the triangles'
 ///   order but may rotate each one's corners; both modes write the
 ///   rotation it decodes to, so that `meshopt` decodes to exactly what
 ///   `quantize` writes. Where the skirt's indices start again at 0 the
@@ -836,16 +836,23 @@ pub fn write_quantized(
     let vertices = counts.iter().copied().max().unwrap_or(0);
     let encoded = meshopt::encode_index_buffer(&all, vertices).expect("a triangle list");
     let rotated: Vec<u32> = meshopt::decode_index_buffer(&encoded, all.len()).expect("just encoded");
-    let bytes: Vec<u8> = rotated.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect();
+    // u16, or u32 for a set denser than u16 indices hold.
+    let stride = index_width(&rotated);
+    let bytes: Vec<u8> = if stride == 2 {
+        rotated.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect()
+    } else {
+        rotated.iter().flat_map(|&i| i.to_le_bytes()).collect()
+    };
+    let component = if stride == 2 { 5123 } else { 5125 };
     let view = push_view(sink, &bytes, None);
-    sink.streams.push(Stream { view, count: all.len(), stride: 2, triangles: true, vertices, filtered: None });
+    sink.streams.push(Stream { view, count: all.len(), stride, triangles: true, vertices, filtered: None });
     let mut first = 0;
     let mut out = Vec::with_capacity(triangles.len());
     for &(p, t) in triangles {
         let n = t.len();
-        let mut accessor = json!({"bufferView": view, "componentType": 5123, "count": n, "type": "SCALAR"});
+        let mut accessor = json!({"bufferView": view, "componentType": component, "count": n, "type": "SCALAR"});
         if first > 0 {
-            accessor["byteOffset"] = (2 * first).into();
+            accessor["byteOffset"] = (stride * first).into();
         }
         sink.accessors.push(accessor);
         first += n;
@@ -882,7 +889,11 @@ pub fn meshopt_pack(sink: &mut Sink, codec: Meshopt) -> usize {
             (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
         let raw = s.filtered.as_ref().map_or(&sink.bin[offset..offset + length], |(_, f)| f.as_slice());
         let encoded = if s.triangles {
-            let indices: Vec<u32> = raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect();
+            let indices: Vec<u32> = if s.stride == 2 {
+                raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect()
+            } else {
+                raw.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+            };
             meshopt::encode_index_buffer(&indices, s.vertices).expect("a triangle list")
         } else {
             encode_vertices(raw, s.stride, codec)
@@ -1302,7 +1313,7 @@ mod tests {
     #[test]
     fn cut_error_is_exact_over_what_the_caller_accepts() {
         use crate::heightfield::Heightfield;
-        use crate::mesh::decimate::{ChunkSpec, MAX_VERTICES, build_chunk};
+        use crate::mesh::decimate::{ChunkSpec, build_chunk};
         use crate::quadtree::ChunkKey;
         let (w, h) = (257usize, 257usize);
         let heights: Vec<f32> = (0..w * h)
@@ -1334,7 +1345,7 @@ mod tests {
                     delta_m: tree.delta_m[level],
                     parent,
                     keep_parent_edges: true,
-                    max_vertices: MAX_VERTICES,
+                    max_vertices: crate::config::MAX_CHUNK_VERTICES as usize,
                     dividing_lines: tree.splits(key.level),
                     split_insertion: false,
                     cancel: None,

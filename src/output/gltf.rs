@@ -1,6 +1,7 @@
 //! Write one chunk as a binary glTF 2.0 (.glb), per the output contract in
 //! DESIGN.md: y-up metres, one node with an f64 `translation`, chunk-local
-//! f32 positions, u16 indices reordered for the vertex cache and vertex fetch
+//! f32 positions, u16 indices (u32 for a chunk of more than 65 535 vertices)
+//! reordered for the vertex cache and vertex fetch
 //! (meshoptimizer), and one "parent" morph target per primitive. A textured
 //! chunk adds TEXCOORD_0 (the footprint onto its tile's texel centres; see
 //! `texture`), its tile as an image in a bufferView, a clamp-to-edge
@@ -24,6 +25,7 @@ use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::VertexCache;
+use crate::mesh::decimate::U16_INDEXED;
 use crate::output::compress::{self, Meshopt, NormalEncoding, Quantization, QuantizeError, Sink};
 use crate::texture::{TextureTile, TileImage};
 
@@ -392,17 +394,31 @@ fn push_vec4(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Valu
     accessors.len() - 1
 }
 
+/// Triangles as u16, or as u32 where they index a vertex past
+/// [`U16_INDEXED`] (a chunk denser than u16 indices hold).
 fn push_indices(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, idx: &[u32]) -> usize {
     align4(bin);
     let offset = bin.len();
+    let wide = index_width(idx) == 4;
     for &i in idx {
-        bin.extend_from_slice(&(i as u16).to_le_bytes());
+        if wide {
+            bin.extend_from_slice(&i.to_le_bytes());
+        } else {
+            bin.extend_from_slice(&(i as u16).to_le_bytes());
+        }
     }
-    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": idx.len() * 2, "target": 34963}));
+    let (size, component) = if wide { (4, 5125) } else { (2, 5123) };
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": idx.len() * size, "target": 34963}));
     accessors.push(json!({
-        "bufferView": views.len() - 1, "componentType": 5123, "count": idx.len(), "type": "SCALAR",
+        "bufferView": views.len() - 1, "componentType": component, "count": idx.len(), "type": "SCALAR",
     }));
     accessors.len() - 1
+}
+
+/// Bytes per index for triangles `idx`: 2 while every index fits u16 below
+/// the restart value 65 535, else 4.
+pub(crate) fn index_width(idx: &[u32]) -> usize {
+    if idx.iter().all(|&i| (i as usize) < U16_INDEXED) { 2 } else { 4 }
 }
 
 /// Packs a JSON document and a binary buffer into the GLB container.
