@@ -871,11 +871,11 @@ fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError>
     results.swap_remove(k).err()
 }
 
-/// The most chunks a level may have to be built level-first
-/// ([`Run::all_chunks`]): at most this many meshes of up to
-/// `max_chunk_vertices` are kept at once (on noise, about 150 MB at 65 535
-/// and 600 MB at the default; real terrain's top chunks are far sparser).
-const LEVEL_FIRST_CHUNKS: usize = 16;
+/// The most vertices a level's chunks may hold together, at
+/// `max_chunk_vertices` each, for it to be built level-first
+/// ([`Run::all_chunks`]): 16 meshes of 65 535 vertices, about 150 MB kept
+/// at once at worst (noise; real terrain's top chunks are far sparser).
+const LEVEL_FIRST_VERTICES: usize = 16 * 65_535;
 
 /// What one chunk adds to the report and the index.
 struct BuiltChunk {
@@ -926,19 +926,19 @@ impl Run<'_> {
     /// build starts again with one more level ([`build_into`]). Such chunks
     /// fail most often at the top, so the top levels are built first, one
     /// level at a time, while they have such chunks and few enough that
-    /// keeping a level's meshes costs little ([`LEVEL_FIRST_CHUNKS`]): a
+    /// keeping a level's meshes costs little ([`LEVEL_FIRST_VERTICES`]): a
     /// failure there wastes only them, not whole subtrees built depth first
     /// before it. Below them the tree is built depth first, subtrees in
     /// parallel: a chunk's mesh lives only while its children are built, so
     /// memory holds a few root-to-leaf paths rather than whole levels.
     fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
         let tree = self.tree;
+        let max_vertices = self.opts.config.max_chunk_vertices as usize;
         let level_first = (0..=tree.depth())
             .take_while(|&l| {
                 let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
                 let l = l as usize;
-                wx * wz > self.opts.config.max_chunk_vertices as usize
-                    && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+                wx * wz > max_vertices && tree.xs[l].len() * tree.zs[l].len() * max_vertices <= LEVEL_FIRST_VERTICES
             })
             .count();
         let mut done = Vec::new();

@@ -51,9 +51,13 @@ fn config(max_error_m: f64, leaf_cells: u32) -> Config {
     Config { max_error_m, leaf_cells: Some(leaf_cells), ..Config::default() }
 }
 
-/// The smallest `max_chunk_vertices` (what u16 indices hold): the refine
-/// levels and leaf-width fallbacks below show on small grids with it.
+/// The smallest `max_chunk_vertices` (what u16 indices hold, the default):
+/// the refine levels and leaf-width fallbacks below show on small grids
+/// with it.
 const U16_CHUNKS: u32 = 65_535;
+
+/// A `max_chunk_vertices` past what u16 indices hold.
+const WIDE_CHUNKS: u32 = 1_048_575;
 
 /// `config` with chunks of at most [`U16_CHUNKS`] vertices.
 fn u16_config(max_error_m: f64, leaf_cells: u32) -> Config {
@@ -207,9 +211,9 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
 /// samples in one 300-cell leaf: every sample a vertex) is written with u32
 /// indices in every `compress` mode and passes every check, where a build
 /// limited to what u16 indices hold must refuse that leaf. Over 601 × 301
-/// samples of the same noise in 150-cell leaves, the default
-/// `max_chunk_vertices` builds the top chunk at full density where the u16
-/// limit needs refine levels.
+/// samples of the same noise in 150-cell leaves, a `max_chunk_vertices` of
+/// 2^20 − 1 builds the top chunk at full density where the u16 limit (the
+/// default) needs refine levels.
 #[test]
 fn a_chunk_denser_than_u16_indices_is_written_with_u32_indices() {
     use terrachunk::config::Compress;
@@ -219,7 +223,8 @@ fn a_chunk_denser_than_u16_indices_is_written_with_u32_indices() {
         // `survives` reads every number with the gltf crate, which knows no
         // quantized file; `verify` decodes them, the validator reads them.
         let out = tmp.path().join(format!("{compress:?}"));
-        let report = build(&with_config(&dem, &out, Config { compress, ..config(0.5, 300) })).unwrap();
+        let cfg = Config { compress, max_chunk_vertices: WIDE_CHUNKS, ..config(0.5, 300) };
+        let report = build(&with_config(&dem, &out, cfg)).unwrap();
         verified(&out);
         assert_eq!(khronos_validate(&out)["files"], 1, "{compress:?}");
         assert_eq!(report.levels.len(), 1, "{compress:?}");
@@ -241,7 +246,7 @@ fn a_chunk_denser_than_u16_indices_is_written_with_u32_indices() {
     assert!(!out.exists());
 
     let dem = write_asc(tmp.path(), "wide.asc", 301, 601, white_noise);
-    let b = survives(&dem, config(0.5, 200));
+    let b = survives(&dem, Config { max_chunk_vertices: WIDE_CHUNKS, ..config(0.5, 200) });
     assert_eq!(b.report.refine_levels, 0, "the 601 × 301 top chunk fits");
     let b = survives(&dem, u16_config(0.5, 200));
     assert!(b.report.refine_levels > 0, "{:#?}", b.report.levels);
