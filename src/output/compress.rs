@@ -136,7 +136,7 @@ use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::mesh::decimate::Grid;
 use crate::morph::points_near_triangle;
-use crate::output::gltf::{PrimData, index_width};
+use crate::output::gltf::{PrimData, index_bytes};
 use crate::quadtree::ChunkTree;
 
 /// The largest u16.
@@ -837,13 +837,8 @@ pub fn write_quantized(
     let encoded = meshopt::encode_index_buffer(&all, vertices).expect("a triangle list");
     let rotated: Vec<u32> = meshopt::decode_index_buffer(&encoded, all.len()).expect("just encoded");
     // u16, or u32 for a set denser than u16 indices hold.
-    let stride = index_width(&rotated);
-    let bytes: Vec<u8> = if stride == 2 {
-        rotated.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect()
-    } else {
-        rotated.iter().flat_map(|&i| i.to_le_bytes()).collect()
-    };
-    let component = if stride == 2 { 5123 } else { 5125 };
+    let (bytes, component) = index_bytes(&rotated);
+    let stride = if component == 5125 { 4 } else { 2 };
     let view = push_view(sink, &bytes, None);
     sink.streams.push(Stream { view, count: all.len(), stride, triangles: true, vertices, filtered: None });
     let mut first = 0;

@@ -399,26 +399,24 @@ fn push_vec4(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Valu
 fn push_indices(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, idx: &[u32]) -> usize {
     align4(bin);
     let offset = bin.len();
-    let wide = index_width(idx) == 4;
-    for &i in idx {
-        if wide {
-            bin.extend_from_slice(&i.to_le_bytes());
-        } else {
-            bin.extend_from_slice(&(i as u16).to_le_bytes());
-        }
-    }
-    let (size, component) = if wide { (4, 5125) } else { (2, 5123) };
-    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": idx.len() * size, "target": 34963}));
+    let (bytes, component) = index_bytes(idx);
+    bin.extend_from_slice(&bytes);
+    views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": bytes.len(), "target": 34963}));
     accessors.push(json!({
         "bufferView": views.len() - 1, "componentType": component, "count": idx.len(), "type": "SCALAR",
     }));
     accessors.len() - 1
 }
 
-/// Bytes per index for triangles `idx`: 2 while every index fits u16 below
-/// the restart value 65 535, else 4.
-pub(crate) fn index_width(idx: &[u32]) -> usize {
-    if idx.iter().all(|&i| (i as usize) < U16_INDEXED) { 2 } else { 4 }
+/// Triangles `idx` as little-endian index bytes and their glTF component
+/// type: u16 (5123) while every index is below the restart value 65 535,
+/// else u32 (5125). Every writer of index data goes through this.
+pub(crate) fn index_bytes(idx: &[u32]) -> (Vec<u8>, u32) {
+    if idx.iter().all(|&i| (i as usize) < U16_INDEXED) {
+        (idx.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect(), 5123)
+    } else {
+        (idx.iter().flat_map(|&i| i.to_le_bytes()).collect(), 5125)
+    }
 }
 
 /// Packs a JSON document and a binary buffer into the GLB container.
