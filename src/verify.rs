@@ -203,6 +203,16 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         mjson["weights"] == serde_json::json!([0.0]) && mjson["extras"]["targetNames"] == serde_json::json!(["parent"]);
     let mut surface = None;
     let mut skirt = None;
+    // A quantized file holds whole steps from the translation. The f32 form
+    // it is decoded into rounds them by up to half an ulp of the chunk-local
+    // coordinate, which a steep slope turns into a height error beyond f64
+    // slack (California at 1 m with wide top chunks: 2·10⁻⁵ m at a sample
+    // exactly δ off beside a cut point), so the steps are recovered exactly:
+    // the rounding is under 0.01 of a step.
+    let on_steps = |l: f32, axis: usize| {
+        let v = f64::from(l);
+        quantization_m.map_or(v, |step| (v / step[axis]).round() * step[axis])
+    };
     for (pi, prim) in mesh.primitives().enumerate() {
         let role = json["meshes"][0]["primitives"][pi]["extras"]["role"].as_str().unwrap_or("").to_string();
         let reader = prim.reader(|b| Some(&buffers[b.index()]));
@@ -231,7 +241,7 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
         let p = Prim {
             uv,
             uv1,
-            positions: local.iter().map(|l| [0, 1, 2].map(|a| translation[a] + f64::from(l[a]))).collect(),
+            positions: local.iter().map(|l| [0, 1, 2].map(|a| translation[a] + on_steps(l[a], a))).collect(),
             morph_dy: deltas.iter().map(|d| f64::from(d[1])).collect(),
             morph_dxz: deltas.iter().map(|d| d[0].abs().max(d[2].abs())).fold(0.0f32, f32::max).into(),
             triangles: tris.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),

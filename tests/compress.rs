@@ -596,3 +596,36 @@ fn whole_metre_heights_keep_all_of_delta_when_quantized() {
     let ratio = vertices[1] / vertices[0];
     assert!(ratio < 1.01, "quantize has {ratio:.4}× the surface vertices of none");
 }
+
+/// Was a bug in `verify`: it read a quantized file's positions through the
+/// f32 form the file is decoded into, which rounds a step count times a
+/// step that is no power of two (73.194 m spacing) by up to half an ulp;
+/// on California at 1 m with wide top chunks that moved a cut point enough
+/// to put a sample exactly δ off 2·10⁻⁵ m beyond it, and 8 chunks failed.
+/// Every position `read_chunk` gives is now a whole number of steps from
+/// the translation, in every quantized mode, wide top chunks included.
+#[test]
+fn verify_reads_quantized_positions_as_whole_steps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hills = |i: usize, j: usize| {
+        let (x, z) = (j as f64, i as f64);
+        300.0 + 120.0 * (x / 23.0).sin() * (z / 31.0).cos() + 40.0 * ((x + 2.0 * z) / 11.0).sin()
+    };
+    let dem = write_asc(tmp.path(), "hills.asc", 301, 301, hills);
+    for compress in [Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1] {
+        let out = tmp.path().join(format!("{compress:?}"));
+        let config = Config { compress, spacing_m: Some([73.194, 92.497]), leaf_cells: Some(64), ..Config::default() };
+        build(&with_config(&dem, &out, config)).unwrap();
+        for (path, _) in all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")) {
+            let c = terrachunk::verify::read_chunk(&out.join(&path)).unwrap();
+            let step = c.quantization_m.expect("a quantized chunk");
+            for p in &c.surface.positions {
+                for a in 0..3 {
+                    let steps = (p[a] - c.translation[a]) / step[a];
+                    assert!((steps - steps.round()).abs() < 1e-6, "{compress:?} {}: {steps} steps", path.display());
+                }
+            }
+        }
+        verified(&out);
+    }
+}
