@@ -26,8 +26,8 @@ pub struct Config {
     /// file's own (1 m for files without a georeference).
     pub spacing_m: Option<[f64; 2]>,
     /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=4096.
-    /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (250
-    /// at the default: a 251² chunk at full density, plus the cut points
+    /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (1 018
+    /// at the default: a 1 019² chunk at full density, plus the cut points
     /// on its borders, still fits); a wider leaf that needs more than
     /// `max_chunk_vertices` to meet `max_error_m` stops the build with an
     /// error that says so. Default: unset, chosen from the data (the
@@ -94,19 +94,21 @@ pub struct Config {
     pub normal_bits: Option<u32>,
 }
 
-/// The default [`Config::max_chunk_vertices`]: 65 535, what u16 indices
-/// hold. More (up to 2^20 − 1 measured) lets the few dense top chunks of
-/// rough ground at a small error skip refine levels (California at 1 m: 7
-/// levels and 10 922 chunks instead of 9 and 27 270, leaves 1.9 % fewer
-/// triangles, 16 % fewer bytes), but `verify` then found 8 chunks of
-/// California `meshopt-v1` a hair over δ (shown as 1.0000 m at δ 1 m;
-/// README, "Settings"), so the default stays at the u16 limit until that
-/// is understood.
-pub const MAX_CHUNK_VERTICES: u32 = 65_535;
+/// The default [`Config::max_chunk_vertices`]: 2^20 − 1. Room for the few
+/// dense top chunks of rough ground at a small error (California's two
+/// roots at 1 m hold 254 000 and 193 000 vertices, Fuji's at 0.25 m
+/// 78 000), which under the u16 limit of 65 535 cost two and one refine
+/// levels: more levels, each binding the finest surface with its edges,
+/// and three times the chunks at the leaves' footprint (California at 1 m:
+/// 9 levels and 27 270 chunks instead of 7 and 10 922, 11 % more surface
+/// vertices; README, "Settings"). A chunk this size is one file of about
+/// 70 MB in f32 (`compress = "none"`), 8 MB with meshopt; noise at a small
+/// error, where every sample is a vertex, still gets refine levels.
+pub const MAX_CHUNK_VERTICES: u32 = 1_048_575;
 
 /// The widest leaf, in cells, that holds every sample of its footprint and
 /// the cut points on its four borders (up to about 10 per border cell, 2.5
-/// on each) within `max_vertices`: 250 for the default 65 535, 1 018 for 2^20 − 1.
+/// on each) within `max_vertices`: 250 for 65 535, 1 018 for the default.
 pub fn dense_leaf_cells(max_vertices: u32) -> u32 {
     let fits = |c: u64| (c + 1) * (c + 1) + 10 * c <= u64::from(max_vertices);
     let mut c = (f64::from(max_vertices).sqrt() as u64).saturating_sub(1);
@@ -346,7 +348,7 @@ mod tests {
     #[test]
     fn dense_leaves_hold_their_samples_and_cut_points_within_the_limit() {
         assert_eq!(dense_leaf_cells(65_535), 250);
-        assert_eq!(dense_leaf_cells(1_048_575), 1018);
+        assert_eq!(dense_leaf_cells(MAX_CHUNK_VERTICES), 1018);
         for limit in [65_535, 100_000, MAX_CHUNK_VERTICES, 16_777_215] {
             let c = u64::from(dense_leaf_cells(limit));
             assert!((c + 1) * (c + 1) + 10 * c <= u64::from(limit), "{limit}");

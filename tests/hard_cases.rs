@@ -51,12 +51,11 @@ fn config(max_error_m: f64, leaf_cells: u32) -> Config {
     Config { max_error_m, leaf_cells: Some(leaf_cells), ..Config::default() }
 }
 
-/// The smallest `max_chunk_vertices` (what u16 indices hold, the default):
-/// the refine levels and leaf-width fallbacks below show on small grids
-/// with it.
+/// The smallest `max_chunk_vertices` (what u16 indices hold): the refine
+/// levels and leaf-width fallbacks below show on small grids with it.
 const U16_CHUNKS: u32 = 65_535;
 
-/// A `max_chunk_vertices` past what u16 indices hold.
+/// A `max_chunk_vertices` past what u16 indices hold (the default).
 const WIDE_CHUNKS: u32 = 1_048_575;
 
 /// `config` with chunks of at most [`U16_CHUNKS`] vertices.
@@ -212,8 +211,8 @@ fn checkerboard_and_white_noise_of_plus_minus_1000_m() {
 /// indices in every `compress` mode and passes every check, where a build
 /// limited to what u16 indices hold must refuse that leaf. Over 601 × 301
 /// samples of the same noise in 150-cell leaves, a `max_chunk_vertices` of
-/// 2^20 − 1 builds the top chunk at full density where the u16 limit (the
-/// default) needs refine levels.
+/// 2^20 − 1 (the default) builds the top chunk at full density where the
+/// u16 limit needs refine levels.
 #[test]
 fn a_chunk_denser_than_u16_indices_is_written_with_u32_indices() {
     use terrachunk::config::Compress;
