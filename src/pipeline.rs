@@ -19,7 +19,7 @@ use crate::config::{Config, ConfigError, dense_leaf_cells};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, build_chunk};
+use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, U16_INDEXED, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
@@ -871,11 +871,12 @@ fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError>
     results.swap_remove(k).err()
 }
 
-/// The most vertices a level's chunks may hold together, at
-/// `max_chunk_vertices` each, for it to be built level-first
-/// ([`Run::all_chunks`]): 16 meshes of 65 535 vertices, about 150 MB kept
-/// at once at worst (noise; real terrain's top chunks are far sparser).
-const LEVEL_FIRST_VERTICES: usize = 16 * 65_535;
+/// The most chunks a level may have to be built level-first
+/// ([`Run::all_chunks`]): at most this many meshes are kept at once. Real
+/// terrain's top chunks are sparse (California's 2 roots at 1 m: 254 000
+/// and 193 000 vertices, the 8 below them about 180 000 each); noise at a
+/// small error, at most `max_chunk_vertices` each, is the worst case.
+const LEVEL_FIRST_CHUNKS: usize = 16;
 
 /// What one chunk adds to the report and the index.
 struct BuiltChunk {
@@ -925,20 +926,23 @@ impl Run<'_> {
     /// one mesh may have vertices can fail to meet its δ, and then the whole
     /// build starts again with one more level ([`build_into`]). Such chunks
     /// fail most often at the top, so the top levels are built first, one
-    /// level at a time, while they have such chunks and few enough that
-    /// keeping a level's meshes costs little ([`LEVEL_FIRST_VERTICES`]): a
-    /// failure there wastes only them, not whole subtrees built depth first
-    /// before it. Below them the tree is built depth first, subtrees in
+    /// level at a time, while their chunks hold more samples than u16
+    /// indices could (whatever `max_chunk_vertices`) and are few enough
+    /// that keeping a level's meshes costs little ([`LEVEL_FIRST_CHUNKS`]):
+    /// a failure there wastes only them, not whole subtrees built depth
+    /// first before it, and a level's textures and files are written while
+    /// the next is meshed. (Bounding this by `max_chunk_vertices` instead
+    /// left Fuji's 513² grid with no level-first level at 2^20 − 1: its
+    /// root then wrote while the other thread waited, 11 % slower at 1 m.) Below them the tree is built depth first, subtrees in
     /// parallel: a chunk's mesh lives only while its children are built, so
     /// memory holds a few root-to-leaf paths rather than whole levels.
     fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
         let tree = self.tree;
-        let max_vertices = self.opts.config.max_chunk_vertices as usize;
         let level_first = (0..=tree.depth())
             .take_while(|&l| {
                 let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
                 let l = l as usize;
-                wx * wz > max_vertices && tree.xs[l].len() * tree.zs[l].len() * max_vertices <= LEVEL_FIRST_VERTICES
+                wx * wz > U16_INDEXED && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
             })
             .count();
         let mut done = Vec::new();
