@@ -315,3 +315,24 @@ def chunk_path(tileset_dir, key):
 
 def name(key):
     return "/".join(map(str, key))
+
+
+def expect_u32_root(tileset_dir):
+    """Exit status 0 when the root chunk's surface holds more than 65 535
+    vertices and its triangles are u32 (the fixture the importers must open
+    with u32 indices); prints what it found."""
+    root = pick_chunks(tileset_dir)[1][0][1]
+    c = Chunk(chunk_path(tileset_dir, root))
+    prim = next(p for p in c.mesh["primitives"] if (p.get("extras") or {}).get("role") == "surface")
+    ct = c.doc["accessors"][prim["indices"]]["componentType"]
+    vertices = c.parts["surface"]["vertices"]
+    print(f"glbref: root {name(root)}: {vertices} surface vertices, index componentType {ct}")
+    return 0 if vertices > 65535 and ct == 5125 else 1
+
+
+if __name__ == "__main__":
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--expect-u32-root":
+        sys.exit(expect_u32_root(sys.argv[2]))
+    sys.exit("usage: glbref.py --expect-u32-root TILESET_DIR")

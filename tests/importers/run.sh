@@ -9,10 +9,11 @@
 #   tests/importers/run.sh [--compress none|quantize|meshopt|meshopt-v1] [--dem DEM]... [--bin TERRACHUNK]
 #                          [--screenshots DIR] [--has-nodata]
 #
-# By default two fixtures: Mount St Helens (UTM 10N on NAD27, 4 levels) and
+# By default three fixtures: Mount St Helens (UTM 10N on NAD27, 4 levels),
 # Dallas–Fort Worth (SRTM 3″ in degrees, 3 levels), both textured with the
 # generated colour map and skirted, so both placement paths (projected and
-# geographic) reach CesiumJS. --compress is passed to `terrachunk build`
+# geographic) reach CesiumJS, and Mount St Helens again at 0.25 m in two
+# levels, whose root passes 65 535 vertices and takes u32 indices. --compress is passed to `terrachunk build`
 # (default none: not passed at all, so this runs on a binary that predates
 # the option); --bin defaults to the debug binary `cargo test` builds;
 # --screenshots writes the first fixture's blender_chunk.png and cesium.png
@@ -37,7 +38,15 @@ while [ $# -gt 0 ]; do
     *) echo "run.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-[ ${#dems[@]} -gt 0 ] || dems=(fixtures/mount_st_helens_30m.tif fixtures/dfw_texas_srtm3.tif)
+# Extra build settings per fixture (one string each, split on spaces).
+extra=()
+if [ ${#dems[@]} -eq 0 ]; then
+  # The third: Mount St Helens at 0.25 m with 256-cell leaves, two levels,
+  # whose root holds over 65 535 vertices and so is written with u32
+  # indices (max_chunk_vertices); the run checks that it is.
+  dems=(fixtures/mount_st_helens_30m.tif fixtures/dfw_texas_srtm3.tif fixtures/mount_st_helens_30m.tif)
+  extra=("" "" "--max-error 0.25 --leaf-cells 256")
+fi
 
 t0=$SECONDS
 stamp() { echo "importers: $1 ($((SECONDS - t0)) s)"; }
@@ -72,13 +81,18 @@ for dem in "${dems[@]}"; do
   out="$work/out$n"
   build_args=(build "$dem" -o "$out")
   [ "$compress" != none ] && build_args+=(--compress "$compress")
+  # shellcheck disable=SC2206 # split on purpose: a fixture's extra settings
+  [ -n "${extra[$n]:-}" ] && build_args+=(${extra[$n]})
   if ! "$bin" "${build_args[@]}" >"$work/build$n.log" 2>&1; then
     cat "$work/build$n.log"
     stamp "build of $dem FAILED"
     status=1
     continue
   fi
-  stamp "built $dem (compress $compress) with $bin"
+  stamp "built $dem (compress $compress${extra[$n]:+, ${extra[$n]}}) with $bin"
+  if [ -n "${extra[$n]:-}" ]; then
+    run "u32 indices ($dem)" "$work/venv/bin/python" "$here/glbref.py" --expect-u32-root "$out"
+  fi
   dir="$shots"
   [ $n -eq 0 ] || dir="$work/shots$n"
   mkdir -p "$dir"
