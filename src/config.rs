@@ -95,16 +95,17 @@ pub struct Config {
 }
 
 /// The default [`Config::max_chunk_vertices`]: 2^20 − 1. Room for the few
-/// dense top chunks of rough ground at a small error (California's two
-/// roots at 1 m hold 254 000 and 193 000 vertices, Fuji's at 0.25 m
-/// 78 000), which under the u16 limit of 65 535 cost two and one refine
-/// levels: more levels, each binding the finest surface with its edges,
-/// and three times the chunks at the leaves' footprint (California at 1 m:
-/// 9 levels and 27 270 chunks instead of 7 and 10 922, 11 % more surface
-/// vertices; README, "Settings"). A chunk this size is one file of about
-/// 70 MB in f32 (`compress = "none"`), 8 MB with meshopt; noise at a small
-/// error, where every sample is a vertex, still gets refine levels.
-pub const MAX_CHUNK_VERTICES: u32 = 1_048_575;
+/// u16 indices: every chunk small enough to cull and page finely. A dense
+/// top chunk of rough ground at a small error then makes refine levels,
+/// which keep the top of the tree coarse for its footprint. Allowing
+/// 2^20 − 1 (tried as the default for one stop) dropped them: California
+/// at 1 m in 7 levels and 10 922 chunks instead of 9 and 27 270, 11 % fewer
+/// surface vertices and 15 % fewer bytes, but every δ above the leaves
+/// then sat on a footprint four times wider, and the viewer's cut along
+/// `docs/flythrough_california.json` drew 3.6 times the triangles (1.56 M
+/// against 428 k) and 3.3 times the file bytes per frame (README,
+/// "Settings"). Larger limits stay a setting.
+pub const MAX_CHUNK_VERTICES: u32 = 65_535;
 
 /// The widest leaf, in cells, that holds every sample of its footprint and
 /// the cut points on its four borders (up to about 10 per border cell, 2.5
@@ -348,8 +349,9 @@ mod tests {
     #[test]
     fn dense_leaves_hold_their_samples_and_cut_points_within_the_limit() {
         assert_eq!(dense_leaf_cells(65_535), 250);
-        assert_eq!(dense_leaf_cells(MAX_CHUNK_VERTICES), 1018);
-        for limit in [65_535, 100_000, MAX_CHUNK_VERTICES, 16_777_215] {
+        assert_eq!(dense_leaf_cells(MAX_CHUNK_VERTICES), 250);
+        assert_eq!(dense_leaf_cells(1_048_575), 1018);
+        for limit in [65_535, 100_000, 1_048_575, 16_777_215] {
             let c = u64::from(dense_leaf_cells(limit));
             assert!((c + 1) * (c + 1) + 10 * c <= u64::from(limit), "{limit}");
             assert!((c + 2) * (c + 2) + 10 * (c + 1) > u64::from(limit), "{limit}");

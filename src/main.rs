@@ -70,7 +70,7 @@ enum Command {
         #[arg(long)]
         leaf_cells: Option<u32>,
         /// Most surface vertices one chunk may hold, 65535..=16777215
-        /// [default: 1048575]; denser coarse chunks make the build add
+        /// [default: 65535]; denser coarse chunks make the build add
         /// refine levels. Chunks over 65 535 vertices get u32 indices.
         #[arg(long)]
         max_chunk_vertices: Option<u32>,

@@ -55,7 +55,7 @@ fn config(max_error_m: f64, leaf_cells: u32) -> Config {
 /// levels and leaf-width fallbacks below show on small grids with it.
 const U16_CHUNKS: u32 = 65_535;
 
-/// A `max_chunk_vertices` past what u16 indices hold (the default).
+/// A `max_chunk_vertices` past what u16 indices hold (a setting; the default for one stop).
 const WIDE_CHUNKS: u32 = 1_048_575;
 
 /// `config` with chunks of at most [`U16_CHUNKS`] vertices.

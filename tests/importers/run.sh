@@ -13,7 +13,8 @@
 # Dallas–Fort Worth (SRTM 3″ in degrees, 3 levels), both textured with the
 # generated colour map and skirted, so both placement paths (projected and
 # geographic) reach CesiumJS, and Mount St Helens again at 0.25 m in two
-# levels, whose root passes 65 535 vertices and takes u32 indices. --compress is passed to `terrachunk build`
+# levels with --max-chunk-vertices 1048575, whose root passes 65 535
+# vertices and takes u32 indices. --compress is passed to `terrachunk build`
 # (default none: not passed at all, so this runs on a binary that predates
 # the option); --bin defaults to the debug binary `cargo test` builds;
 # --screenshots writes the first fixture's blender_chunk.png and cesium.png
@@ -41,11 +42,12 @@ done
 # Extra build settings per fixture (one string each, split on spaces).
 extra=()
 if [ ${#dems[@]} -eq 0 ]; then
-  # The third: Mount St Helens at 0.25 m with 256-cell leaves, two levels,
+  # The third: Mount St Helens at 0.25 m with 256-cell leaves and chunks
+  # allowed up to 2^20 - 1 vertices, two levels,
   # whose root holds over 65 535 vertices and so is written with u32
   # indices (max_chunk_vertices); the run checks that it is.
   dems=(fixtures/mount_st_helens_30m.tif fixtures/dfw_texas_srtm3.tif fixtures/mount_st_helens_30m.tif)
-  extra=("" "" "--max-error 0.25 --leaf-cells 256")
+  extra=("" "" "--max-error 0.25 --leaf-cells 256 --max-chunk-vertices 1048575")
 fi
 
 t0=$SECONDS
