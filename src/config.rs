@@ -26,9 +26,9 @@ pub struct Config {
     /// file's own (1 m for files without a georeference).
     pub spacing_m: Option<[f64; 2]>,
     /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=4096.
-    /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (1 018
-    /// at the default: a 1 019² chunk at full density, plus the cut points
-    /// on its borders, still fits); a wider leaf that needs more than
+    /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (250
+    /// at the default: a 251² chunk at full density, plus the cut points
+    /// on its borders, still fits; 1 018 at 1 048 575); a wider leaf that needs more than
     /// `max_chunk_vertices` to meet `max_error_m` stops the build with an
     /// error that says so. Default: unset, chosen from the data (the
     /// shallowest tree whose chunks hold at most 8 000 vertices on average).
@@ -94,8 +94,8 @@ pub struct Config {
     pub normal_bits: Option<u32>,
 }
 
-/// The default [`Config::max_chunk_vertices`]: 2^20 − 1. Room for the few
-/// u16 indices: every chunk small enough to cull and page finely. A dense
+/// The default [`Config::max_chunk_vertices`]: 65 535, what u16 indices
+/// hold, so every chunk stays small enough to cull and page finely. A dense
 /// top chunk of rough ground at a small error then makes refine levels,
 /// which keep the top of the tree coarse for its footprint. Allowing
 /// 2^20 − 1 (tried as the default for one stop) dropped them: California
@@ -109,7 +109,8 @@ pub const MAX_CHUNK_VERTICES: u32 = 65_535;
 
 /// The widest leaf, in cells, that holds every sample of its footprint and
 /// the cut points on its four borders (up to about 10 per border cell, 2.5
-/// on each) within `max_vertices`: 250 for 65 535, 1 018 for the default.
+/// on each) within `max_vertices`: 250 for the default 65 535, 1 018 for
+/// 1 048 575.
 pub fn dense_leaf_cells(max_vertices: u32) -> u32 {
     let fits = |c: u64| (c + 1) * (c + 1) + 10 * c <= u64::from(max_vertices);
     let mut c = (f64::from(max_vertices).sqrt() as u64).saturating_sub(1);

@@ -136,7 +136,7 @@ use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::mesh::decimate::Grid;
 use crate::morph::points_near_triangle;
-use crate::output::gltf::{PrimData, index_bytes};
+use crate::output::gltf::{PrimData, index_bytes, index_values};
 use crate::quadtree::ChunkTree;
 
 /// The largest u16.
@@ -884,12 +884,7 @@ pub fn meshopt_pack(sink: &mut Sink, codec: Meshopt) -> usize {
             (view["byteOffset"].as_u64().unwrap_or(0) as usize, view["byteLength"].as_u64().unwrap_or(0) as usize);
         let raw = s.filtered.as_ref().map_or(&sink.bin[offset..offset + length], |(_, f)| f.as_slice());
         let encoded = if s.triangles {
-            let indices: Vec<u32> = if s.stride == 2 {
-                raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect()
-            } else {
-                raw.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
-            };
-            meshopt::encode_index_buffer(&indices, s.vertices).expect("a triangle list")
+            meshopt::encode_index_buffer(&index_values(raw, s.stride), s.vertices).expect("a triangle list")
         } else {
             encode_vertices(raw, s.stride, codec)
         };

@@ -419,6 +419,15 @@ pub(crate) fn index_bytes(idx: &[u32]) -> (Vec<u8>, u32) {
     }
 }
 
+/// The indices [`index_bytes`] wrote, read back from `raw` at `width` bytes
+/// each (2 for u16, 4 for u32).
+pub(crate) fn index_values(raw: &[u8], width: usize) -> Vec<u32> {
+    match width {
+        2 => raw.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect(),
+        _ => raw.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+    }
+}
+
 /// Packs a JSON document and a binary buffer into the GLB container.
 pub(crate) fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
     let pad = |n: usize| (4 - n % 4) % 4;
