@@ -55,6 +55,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         cut_share: terrachunk::mesh::decimate::CUT_SHARE,
         cut_lattice: None,
         height_step: None,
+        thin: false,
     };
     build_chunk(&grid(hf), &spec).expect("the fixture meshes")
 }

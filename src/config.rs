@@ -41,6 +41,13 @@ pub struct Config {
     /// indices, the others u16. Range: 65 535..=16 777 215. Default
     /// [`MAX_CHUNK_VERTICES`] (README, "Settings").
     pub max_chunk_vertices: u32,
+    /// Which levels the mesher thins after its greedy insertion (step 5:
+    /// free vertices the finished TIN no longer needs are collapsed onto a
+    /// neighbour where every sample stays within δ). Default `leaves` (the
+    /// deepest level: the finest surface, nearly as fast as none); `all`
+    /// also thins every coarser level (fewer triangles and bytes over all
+    /// levels, about a third more meshing time); `none` (README, "Thinning").
+    pub thin: Thin,
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default: unset, which means `strip`
     /// with `compress = "meshopt"` and `fast` otherwise
@@ -170,6 +177,31 @@ impl Compress {
     }
 }
 
+/// Which levels the mesher thins after greedy insertion
+/// ([`Config::thin`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Thin {
+    /// No level.
+    None,
+    /// The deepest level.
+    #[default]
+    Leaves,
+    /// Every level.
+    All,
+}
+
+impl Thin {
+    /// Whether a level is thinned (`deepest`: it has no children).
+    pub fn level(self, deepest: bool) -> bool {
+        match self {
+            Thin::None => false,
+            Thin::Leaves => deepest,
+            Thin::All => true,
+        }
+    }
+}
+
 /// Triangle order for the vertex cache. Measured on 1 m SRTM chunks (average
 /// transformed vertices per triangle, 16-entry FIFO; 0.5 is ideal, the
 /// mesher's own order gives 2.0): `Fast` 0.94, `Best` 0.68, while `Best`
@@ -211,6 +243,7 @@ impl Default for Config {
             spacing_m: None,
             leaf_cells: None,
             max_chunk_vertices: MAX_CHUNK_VERTICES,
+            thin: Thin::Leaves,
             vertex_cache: None,
             complete_tree: false,
             max_texture_px: 512,

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
-use terrachunk::config::{Compress, Config, TextureFormat};
+use terrachunk::config::{Compress, Config, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::{read_chunk, verify};
@@ -74,6 +74,11 @@ enum Command {
         /// refine levels. Chunks over 65 535 vertices get u32 indices.
         #[arg(long)]
         max_chunk_vertices: Option<u32>,
+        /// Which levels the mesher thins after greedy insertion: `leaves`
+        /// (the deepest), `all` (fewer triangles, slower), or `none`
+        /// [default: leaves].
+        #[arg(long, value_enum)]
+        thin: Option<ThinArg>,
         /// Build every chunk to the deepest level, even below one that already
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
@@ -187,6 +192,13 @@ enum CompressArg {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum ThinArg {
+    None,
+    Leaves,
+    All,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum FormatArg {
     Png,
     Jpeg,
@@ -231,6 +243,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             normal_map,
             leaf_cells,
             max_chunk_vertices,
+            thin,
             complete_tree,
             compress,
             force,
@@ -279,6 +292,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             if let Some(v) = max_chunk_vertices {
                 cfg.max_chunk_vertices = v;
+            }
+            if let Some(t) = thin {
+                cfg.thin = match t {
+                    ThinArg::None => Thin::None,
+                    ThinArg::Leaves => Thin::Leaves,
+                    ThinArg::All => Thin::All,
+                };
             }
             cfg.complete_tree |= complete_tree;
             if let Some(c) = compress {

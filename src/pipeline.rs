@@ -1082,6 +1082,7 @@ impl Run<'_> {
                 // Quantized output: each triangle is meshed to δ less what
                 // its corners' heights round by (output::compress).
                 height_step: self.ctx.quantization.as_ref().map(|q| q.step_y_m),
+                thin: self.opts.config.thin.level(!tree.splits(level)),
             };
             let mesh = build_chunk(grid, &spec)?;
             if mesh.max_error_m > spec.delta_m {

@@ -1,8 +1,8 @@
 //! Greedy insertion (Garland & Heckbert's "Greedy Insertion" TIN, as in
 //! delatin), constrained and nested so that Chunked LOD can morph exactly.
 //!
-//! A chunk's TIN ([`super::tin`]) is built in four steps, each of which only
-//! adds points:
+//! A chunk's TIN ([`super::tin`]) is built in five steps; the first four only
+//! add points:
 //!
 //! 1. Start from the parent's triangles inside the footprint with *every*
 //!    parent edge fixed (never flipped), so whatever is inserted later stays
@@ -23,6 +23,8 @@
 //!    No insertion or flip crosses a dividing line, so the parts the lines
 //!    make can be filled as TINs of their own and joined, with the same
 //!    triangles: the root does so in parallel ([`ChunkSpec::split_insertion`]).
+//! 5. Where [`ChunkSpec::thin`] says so, take out the free vertices step 4
+//!    added that the finished TIN no longer needs ([`thin`]).
 //!
 //! Decisions are made in f64 grid coordinates; next to cut points the
 //! target is shrunk by a margin that covers the rounding of the written
@@ -170,6 +172,9 @@ pub struct ChunkSpec<'p> {
     /// (`Quantization::step_y_m`), which each triangle's target leaves room
     /// for ([`Targets::rounding`]). `None`: f32 output.
     pub height_step: Option<f64>,
+    /// Step 5: take out the vertices the finished mesh does not need
+    /// ([`thin`]).
+    pub thin: bool,
 }
 
 impl ChunkSpec<'_> {
@@ -201,6 +206,7 @@ impl<'p> ChunkSpec<'p> {
             cut_share: CUT_SHARE,
             cut_lattice: None,
             height_step: None,
+            thin: false,
         }
     }
 
@@ -218,7 +224,7 @@ impl<'p> ChunkSpec<'p> {
     }
 }
 
-/// Builds one chunk's TIN (see the module comment for the four steps).
+/// Builds one chunk's TIN (see the module comment for the five steps).
 pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError> {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let window = Window::new(grid, spec.footprint);
@@ -273,7 +279,7 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             })
         })
         .collect();
-    let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
+    let (mut tin, mut lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
         true => insert_by_parts(grid, spec, target, &tin, lines, &start, (mx, mz))?,
         false => {
             let (mut tin, mut lines) = (tin, lines);
@@ -281,6 +287,14 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             insert_samples(&mut tin, spec, &mut lines, &mut queue, &start, nested, None)?;
             (tin, lines, queue.scans)
         }
+    };
+    let scans = match spec.thin {
+        true => {
+            let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans };
+            thin(&mut tin, &mut lines, &mut queue);
+            queue.scans
+        }
+        false => scans,
     };
     Ok(finish(grid, spec, &tin, &lines, &scans, (relief, magnitude)))
 }
@@ -347,6 +361,146 @@ fn insert_samples(
         }
     }
     Ok(())
+}
+
+/// Step 5: takes out the free vertices (inserted in step 4, every edge
+/// free) that the mesh no longer needs. Greedy insertion places its early
+/// points against large triangles; once the later ones are in, many of
+/// them can go: a vertex is collapsed onto the neighbour that leaves its
+/// triangles furthest within their targets, where every triangle stays
+/// counter-clockwise and every sample within its target. The triangles
+/// around a free vertex lie inside one parent triangle (no fixed edge
+/// crosses them), so the mesh still refines its parent's. Passes run over
+/// the vertices in order until one takes none out.
+fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
+    let voids = queue.grid.grid.filled.is_some();
+    let (mut star, mut changed, mut options, mut fan) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    // Each pass after the first visits only the neighbours of vertices the
+    // last one took out: elsewhere nothing changed.
+    let mut visit = vec![true; tin.pts.len()];
+    let mut next = vec![false; tin.pts.len()];
+    for _ in 0..4 {
+        let mut removed = 0;
+        for v in 0..tin.pts.len() as u32 {
+            if !visit[v as usize] {
+                continue;
+            }
+            let p = tin.pts[v as usize];
+            if !whole(p.x) || !whole(p.z) || !tin.free_star(v, &mut star) {
+                continue;
+            }
+            // Over a DEM with voids, only where every triangle around v
+            // covers data: the holes keep their shape.
+            if voids
+                && star.iter().any(|&g| {
+                    let t = g / 3;
+                    queue
+                        .scans
+                        .get(t as usize)
+                        .is_none_or(|s| s.version != tin.version(t) || s.found.coverage != Some(Coverage::Valid))
+                })
+            {
+                continue;
+            }
+            let (i, j) = (p.z as u32, p.x as u32);
+            lines.unmark_vertex(i, j);
+            // The neighbours v may go onto, nearest first by v's own sample
+            // against the new triangle it falls in (it went in for being far
+            // off, and mostly still is): a cheap test that rules most out.
+            options.clear();
+            'onto: for (k, &e) in star.iter().enumerate() {
+                let u = tin.ends(e).1;
+                let pu = tin.pts[u as usize];
+                let mut own = None;
+                for &g in &star {
+                    let (w, x) = (tin.ends(g).1, tin.apex(g));
+                    if w == u || x == u {
+                        continue;
+                    }
+                    let (b, c) = (tin.pts[w as usize], tin.pts[x as usize]);
+                    let o = robust::orient2d(
+                        Coord { x: pu.x, y: pu.z },
+                        Coord { x: b.x, y: b.z },
+                        Coord { x: c.x, y: c.z },
+                    );
+                    if o <= 1e-6 {
+                        continue 'onto;
+                    }
+                    let [_, l1, l2] = plane_weights(&pu, &b, &c, p.x, p.z);
+                    if own.is_none() && l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
+                        let h = (1.0 - l1 - l2) * pu.h + l1 * b.h + l2 * c.h;
+                        let off = (p.h - h).abs() / queue.target.over(&[pu, b, c]).max(1e-300);
+                        if off > 1.0 {
+                            continue 'onto;
+                        }
+                        own = Some(off);
+                    }
+                }
+                options.push((own.unwrap_or(0.0), k));
+            }
+            options.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            // The first whose every triangle keeps its samples within target.
+            let mut chosen = None;
+            'option: for &(_, k) in &options {
+                let e = star[k];
+                let u = tin.ends(e).1;
+                fan.clear();
+                for &g in &star {
+                    let (w, x) = (tin.ends(g).1, tin.apex(g));
+                    if w == u || x == u {
+                        continue;
+                    }
+                    let tri = [tin.pts[u as usize], tin.pts[w as usize], tin.pts[x as usize]];
+                    let found = scan_for_queue(queue.grid, queue.clip, lines, &tri);
+                    let covers = match found.coverage {
+                        Some(Coverage::Valid) => true,
+                        Some(Coverage::NoSample) => !voids,
+                        _ => false,
+                    };
+                    if !covers || found.max_err > queue.target.over(&tri) {
+                        continue 'option;
+                    }
+                    fan.push(([u, w, x], found));
+                }
+                chosen = Some(e);
+                break;
+            }
+            match chosen {
+                Some(e) => {
+                    for &g in &star {
+                        next[tin.ends(g).1 as usize] = true;
+                    }
+                    tin.collapse(e, &mut changed);
+                    for &t in &changed {
+                        let corners = tin.triangle(t);
+                        let found = fan.iter().find(|(c, _)| corners.contains(&c[1]) && corners.contains(&c[2]));
+                        match found {
+                            Some(&(_, f)) => queue.record(t, tin.version(t), f, queue.target.over(&tin.corners(t))),
+                            None => queue.push(tin, lines, t),
+                        }
+                    }
+                    removed += 1;
+                }
+                None => lines.mark_vertex(i, j),
+            }
+        }
+        if removed == 0 {
+            break;
+        }
+        std::mem::swap(&mut visit, &mut next);
+        next.fill(false);
+    }
+}
+
+/// Barycentric weights of (x, z) in triangle (a, b, c); zeros if degenerate.
+fn plane_weights(a: &V, b: &V, c: &V, x: f64, z: f64) -> [f64; 3] {
+    let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
+    if det.abs() < 1e-300 {
+        return [0.0; 3];
+    }
+    let l1 = ((x - a.x) * (c.z - a.z) - (c.x - a.x) * (z - a.z)) / det;
+    let l2 = ((b.x - a.x) * (z - a.z) - (x - a.x) * (b.z - a.z)) / det;
+    [1.0 - l1 - l2, l1, l2]
 }
 
 /// One part of a chunk filled on its own ([`insert_by_parts`]).
@@ -1017,6 +1171,10 @@ impl Lines {
         self.vertex[(i - self.origin.1) as usize * self.width + (j - self.origin.0) as usize] = true;
     }
     #[inline]
+    fn unmark_vertex(&mut self, i: u32, j: u32) {
+        self.vertex[(i - self.origin.1) as usize * self.width + (j - self.origin.0) as usize] = false;
+    }
+    #[inline]
     fn is_vertex(&self, i: u32, j: u32) -> bool {
         self.vertex[(i - self.origin.1) as usize * self.width + (j - self.origin.0) as usize]
     }
@@ -1186,25 +1344,9 @@ impl Queue<'_> {
     /// sample that step 4 may insert, if that is beyond the target.
     fn push(&mut self, tin: &Tin, lines: &Lines, t: u32) {
         let tri = tin.corners(t);
-        let mut worst: Option<(f64, u32, u32)> = None;
-        let mut max_err = 0.0;
-        let coverage = scan_triangle(self.grid, self.clip, &tri, |i, j, err| {
-            if err > max_err && !lines.is_vertex(i, j) {
-                max_err = err;
-            }
-            if worst.is_none_or(|w| err > w.0)
-                && !lines.row_is_line(i)
-                && !lines.col_is_line(j)
-                && !lines.is_vertex(i, j)
-            {
-                worst = Some((err, i, j));
-            }
-            // A sample no further off than the worst so far (and so than
-            // `max_err`, never below it) changes neither.
-            worst.map_or(f64::NEG_INFINITY, |w| w.0)
-        });
+        let found = scan_for_queue(self.grid, self.clip, lines, &tri);
         let target = self.target.over(&tri);
-        self.record(t, tin.version(t), TriangleScan { max_err, coverage, worst }, target);
+        self.record(t, tin.version(t), found, target);
     }
 
     /// Records what triangle `t` (as it is now) holds, and queues its worst
@@ -1218,6 +1360,25 @@ impl Queue<'_> {
         let c = found.worst.filter(|w| w.0 > target).map(|(err, i, j)| Candidate { err, t, i, j });
         self.heap.set(t, c);
     }
+}
+
+/// Scans triangle `tri` for step 4's queue: its largest error over samples
+/// that are not vertices, and its worst sample step 4 may insert.
+fn scan_for_queue(grid: &Window, clip: (Span, Span), lines: &Lines, tri: &[V; 3]) -> TriangleScan {
+    let mut worst: Option<(f64, u32, u32)> = None;
+    let mut max_err = 0.0;
+    let coverage = scan_triangle(grid, clip, tri, |i, j, err| {
+        if err > max_err && !lines.is_vertex(i, j) {
+            max_err = err;
+        }
+        if worst.is_none_or(|w| err > w.0) && !lines.row_is_line(i) && !lines.col_is_line(j) && !lines.is_vertex(i, j) {
+            worst = Some((err, i, j));
+        }
+        // A sample no further off than the worst so far (and so than
+        // `max_err`, never below it) changes neither.
+        worst.map_or(f64::NEG_INFINITY, |w| w.0)
+    });
+    TriangleScan { max_err, coverage, worst }
 }
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
@@ -1337,7 +1498,15 @@ fn finish(
     scans: &[Scan],
     (relief_m, magnitude_m): (f64, f64),
 ) -> ChunkMesh {
-    let vertices: Vec<MeshVertex> = tin.pts.iter().map(|v| MeshVertex { x: v.x, z: v.z, h: v.h, ph: v.ph }).collect();
+    // Vertices step 5 collapsed away are left out, the rest keep their order.
+    let mut id = Vec::with_capacity(tin.pts.len());
+    let mut vertices = Vec::with_capacity(tin.pts.len());
+    for (k, v) in tin.pts.iter().enumerate() {
+        id.push(vertices.len() as u32);
+        if !spec.thin || tin.is_live(k as u32) {
+            vertices.push(MeshVertex { x: v.x, z: v.z, h: v.h, ph: v.ph });
+        }
+    }
     let n = tin.num_triangles();
     let mut triangles = Vec::with_capacity(n);
     let mut kept = Vec::with_capacity(n);
@@ -1346,7 +1515,7 @@ fn finish(
     let mut parent_locator = None;
     let lattice = spec.lattice();
     let mut seeds = Vec::with_capacity(n);
-    for t in 0..n as u32 {
+    for t in (0..n as u32).filter(|&t| !tin.is_dead(t)) {
         let tri = tin.corners(t);
         // A triangle's last scan still holds unless a corner is a cut point:
         // then a sample within rounding outside it may since have become a
@@ -1392,7 +1561,7 @@ fn finish(
         };
         // Counter-clockwise with z taken as up is clockwise in x-east,
         // z-south grid space: store them reversed.
-        let [a, b, c] = tin.triangle(t);
+        let [a, b, c] = tin.triangle(t).map(|v| id[v as usize]);
         triangles.push([a, c, b]);
         // A zero-area sliver, or a small triangle with no sample inside,
         // covers nothing by itself: keep it unless its cell is all nodata.
@@ -1486,6 +1655,7 @@ mod tests {
             cut_share: CUT_SHARE,
             cut_lattice: None,
             height_step: None,
+            thin: false,
         };
         let root = ChunkKey { level: 0, x: 0, y: 0 };
         let whole = ((0, 128), (0, 96));
@@ -1512,6 +1682,79 @@ mod tests {
             assert!(matches!(build_chunk(&grid, &tight), Err(MeshError::TooDense { .. })), "split {split}");
             let exact = ChunkSpec { max_vertices: limit + 1, ..spec(root, whole, 2.0, None, split) };
             assert!(build_chunk(&grid, &exact).is_ok(), "split {split}");
+        }
+    }
+
+    /// Step 5 takes out vertices step 4 no longer needs, and only those: the
+    /// thinned TIN keeps every sample within δ (measured afresh over its
+    /// triangles, not from the mesher's scans), keeps every border and
+    /// dividing-line vertex, holds no vertex without a triangle, and a child
+    /// meshed from a thinned parent still refines it (each child triangle
+    /// inside one parent triangle, each morph target on the parent surface).
+    #[test]
+    fn thinning_takes_out_vertices_and_keeps_every_sample_within_delta() {
+        let (w, h) = (129, 97);
+        let heights = rough(w, h);
+        let grid = Grid::new(w, h, &heights, None);
+        let root = ChunkKey { level: 0, x: 0, y: 0 };
+        let whole = ((0, 128), (0, 96));
+        let spec = |key, footprint, delta_m, parent, thin| ChunkSpec {
+            key,
+            footprint,
+            delta_m,
+            parent,
+            dividing_lines: true,
+            thin,
+            ..ChunkSpec::unconstrained(footprint, delta_m)
+        };
+        let [plain, thinned] =
+            [false, true].map(|thin| build_chunk(&grid, &spec(root, whole, 2.0, None, thin)).unwrap());
+        let (n0, n1) = (plain.vertices.len(), thinned.vertices.len());
+        assert!(n1 * 100 < n0 * 97, "{n1} vertices thinned against {n0}");
+        assert!(thinned.max_error_m <= 2.0, "{}", thinned.max_error_m);
+        let within = |m: &ChunkMesh, delta: f64| {
+            let loc = m.locator();
+            for i in 0..h {
+                for j in 0..w {
+                    let (_, s) = loc.locate(j as f64, i as f64, 1e-9).expect("every sample covered");
+                    let e = (s - f64::from(heights[i * w + j])).abs();
+                    assert!(e <= delta + 1e-9, "sample ({i}, {j}) {e} m off, δ {delta}");
+                }
+            }
+        };
+        within(&thinned, 2.0);
+        let mut used = vec![false; n1];
+        thinned.triangles.iter().flatten().for_each(|&v| used[v as usize] = true);
+        assert!(used.iter().all(|&u| u), "a vertex without a triangle");
+        let lines = |m: &ChunkMesh| {
+            let on = |v: &MeshVertex| [0.0, 64.0, 128.0].contains(&v.x) || [0.0, 48.0, 96.0].contains(&v.z);
+            let mut p: Vec<(u64, u64)> =
+                m.vertices.iter().filter(|v| on(v)).map(|v| (v.x.to_bits(), v.z.to_bits())).collect();
+            p.sort_unstable();
+            p
+        };
+        assert_eq!(lines(&plain), lines(&thinned));
+
+        let child = ChunkKey { level: 1, x: 1, y: 0 };
+        let quarter = ((64, 128), (0, 48));
+        let c =
+            build_chunk(&grid, &ChunkSpec { dividing_lines: false, ..spec(child, quarter, 1.0, Some(&thinned), true) })
+                .unwrap();
+        assert!(c.max_error_m <= 1.0, "{}", c.max_error_m);
+        let parent = thinned.locator();
+        for v in &c.vertices {
+            let (_, ph) = parent.locate(v.x, v.z, 1e-9).unwrap();
+            assert!((ph - v.ph).abs() < 1e-9, "morph target {} against the parent's {ph}", v.ph);
+        }
+        for t in &c.triangles {
+            let [a, b, d] = t.map(|k| c.vertices[k as usize]);
+            let (cx, cz) = ((a.x + b.x + d.x) / 3.0, (a.z + b.z + d.z) / 3.0);
+            let (pt, _) = parent.locate(cx, cz, 1e-9).unwrap();
+            let [p, q, r] = thinned.triangles[pt as usize].map(|k| thinned.vertices[k as usize]);
+            for v in [a, b, d] {
+                let (outside, _) = barycentric(&p, &q, &r, v.x, v.z);
+                assert!(outside < 1e-9, "a child triangle crosses a parent edge");
+            }
         }
     }
 

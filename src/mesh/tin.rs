@@ -362,6 +362,97 @@ impl Tin {
         self.stack = stack;
     }
 
+    /// The corner of half-edge `e`'s triangle opposite it.
+    #[inline]
+    pub fn apex(&self, e: u32) -> u32 {
+        self.tv[prev(e) as usize]
+    }
+
+    /// Whether triangle `t` was taken out by [`Tin::collapse`].
+    #[inline]
+    pub fn is_dead(&self, t: u32) -> bool {
+        self.tv[3 * t as usize] == NONE
+    }
+
+    /// Whether vertex `v` is still connected (not collapsed away).
+    #[inline]
+    pub fn is_live(&self, v: u32) -> bool {
+        self.out[v as usize] != NONE
+    }
+
+    /// The half-edges leaving `v`, counter-clockwise, into `out` (cleared
+    /// first); false, with `out` unspecified, where `v` is on the border or
+    /// one of its edges is fixed: only such a free vertex may be collapsed.
+    pub fn free_star(&self, v: u32, out: &mut Vec<u32>) -> bool {
+        out.clear();
+        let start = self.out[v as usize];
+        if start == NONE {
+            return false;
+        }
+        let mut e = start;
+        loop {
+            if self.fixed[e as usize] {
+                return false;
+            }
+            out.push(e);
+            let t = self.twin[prev(e) as usize];
+            if t == NONE || out.len() > 1024 {
+                return false;
+            }
+            e = t;
+            if e == start {
+                return true;
+            }
+        }
+    }
+
+    /// Collapses half-edge `e` (v → u) of a free vertex v ([`Tin::free_star`])
+    /// onto u: the two triangles on the edge go, every other triangle around
+    /// v takes u for v. The caller checks that each of those stays
+    /// counter-clockwise; they are rewritten (version bumped), and returned
+    /// in `changed` (cleared first).
+    pub fn collapse(&mut self, e: u32, changed: &mut Vec<u32>) {
+        changed.clear();
+        let f = self.twin[e as usize];
+        let (v, u) = self.ends(e);
+        let (en, ep, fnx, fp) = (next(e), prev(e), next(f), prev(f));
+        let (x1, fx1, y1) = (self.twin[en as usize], self.fixed[en as usize], self.twin[ep as usize]);
+        let (y2, x2, fx2) = (self.twin[fnx as usize], self.twin[fp as usize], self.fixed[fp as usize]);
+        // Every half-edge leaving v outside the two triangles now leaves u.
+        let mut g = self.twin[ep as usize];
+        while g != fnx {
+            self.tv[g as usize] = u;
+            changed.push(g / 3);
+            g = self.twin[prev(g) as usize];
+        }
+        self.twin[y1 as usize] = x1;
+        self.fixed[y1 as usize] = fx1;
+        if x1 != NONE {
+            self.twin[x1 as usize] = y1;
+        }
+        self.twin[y2 as usize] = x2;
+        self.fixed[y2 as usize] = fx2;
+        if x2 != NONE {
+            self.twin[x2 as usize] = y2;
+        }
+        let a = self.tv[ep as usize];
+        let b = self.tv[fp as usize];
+        self.out[v as usize] = NONE;
+        self.out[u as usize] = y1;
+        self.out[a as usize] = next(y1);
+        self.out[b as usize] = y2;
+        for t in [e / 3, f / 3] {
+            for k in 0..3 {
+                self.tv[(3 * t + k) as usize] = NONE;
+                self.twin[(3 * t + k) as usize] = NONE;
+            }
+            self.version[t as usize] = self.version[t as usize].wrapping_add(1);
+        }
+        for &t in changed.iter() {
+            self.version[t as usize] = self.version[t as usize].wrapping_add(1);
+        }
+    }
+
     /// Where `p` lies relative to triangle `t`: `Ok` inside or on it, else
     /// `Err` with a half-edge of `t` that `p` is strictly beyond.
     pub fn classify(&self, t: u32, p: Coord<f64>) -> Result<Position, u32> {

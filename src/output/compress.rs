@@ -1342,6 +1342,7 @@ mod tests {
                     cut_share: crate::mesh::decimate::CUT_SHARE,
                     cut_lattice: on_grid.then_some(q.shift[level]),
                     height_step: Some(q.step_y_m),
+                    thin: false,
                 };
                 build_chunk(&grid, &spec).unwrap()
             };
