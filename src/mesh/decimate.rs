@@ -374,7 +374,7 @@ fn insert_samples(
 /// the vertices in order until one takes none out.
 fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
     let voids = queue.grid.grid.filled.is_some();
-    let (mut star, mut changed, mut options, mut fan) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut star, mut changed, mut options, mut probes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     // Each pass after the first visits only the neighbours of vertices the
     // last one took out: elsewhere nothing changed.
     let mut visit = vec![true; tin.pts.len()];
@@ -404,14 +404,26 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
             }
             let (i, j) = (p.z as u32, p.x as u32);
             lines.unmark_vertex(i, j);
+            // The samples that decide first: v's own (it went in for being
+            // far off, and mostly still is) and each old triangle's worst
+            // (within the target, mostly close to it).
+            probes.clear();
+            probes.push((p.x, p.z, p.h));
+            for &g in &star {
+                let t = g / 3;
+                if let Some(sc) = queue.scans.get(t as usize).filter(|sc| sc.version == tin.version(t))
+                    && let Some((_, wi, wj)) = sc.found.worst
+                {
+                    probes.push((f64::from(wj), f64::from(wi), f64::from(queue.grid.sample(wi as usize, wj as usize))));
+                }
+            }
             // The neighbours v may go onto, nearest first by v's own sample
-            // against the new triangle it falls in (it went in for being far
-            // off, and mostly still is): a cheap test that rules most out.
+            // against the new triangle it falls in: cheap tests, no scan,
+            // that rule most out.
             options.clear();
             'onto: for (k, &e) in star.iter().enumerate() {
                 let u = tin.ends(e).1;
                 let pu = tin.pts[u as usize];
-                let mut own = None;
                 for &g in &star {
                     let (w, x) = (tin.ends(g).1, tin.apex(g));
                     if w == u || x == u {
@@ -426,17 +438,30 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
                     if o <= 1e-6 {
                         continue 'onto;
                     }
-                    let [_, l1, l2] = plane_weights(&pu, &b, &c, p.x, p.z);
-                    if own.is_none() && l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
-                        let h = (1.0 - l1 - l2) * pu.h + l1 * b.h + l2 * c.h;
-                        let off = (p.h - h).abs() / queue.target.over(&[pu, b, c]).max(1e-300);
-                        if off > 1.0 {
-                            continue 'onto;
+                }
+                let mut own = 0.0;
+                for (n, &(px, pz, ph)) in probes.iter().enumerate() {
+                    for &g in &star {
+                        let (w, x) = (tin.ends(g).1, tin.apex(g));
+                        if w == u || x == u {
+                            continue;
                         }
-                        own = Some(off);
+                        let (b, c) = (tin.pts[w as usize], tin.pts[x as usize]);
+                        let [_, l1, l2] = plane_weights(&pu, &b, &c, px, pz);
+                        if l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
+                            let h = (1.0 - l1 - l2) * pu.h + l1 * b.h + l2 * c.h;
+                            let off = (ph - h).abs() / queue.target.over(&[pu, b, c]).max(1e-300);
+                            if off > 1.0 {
+                                continue 'onto;
+                            }
+                            if n == 0 {
+                                own = off;
+                            }
+                            break;
+                        }
                     }
                 }
-                options.push((own.unwrap_or(0.0), k));
+                options.push((own, k));
             }
             options.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             // The first whose every triangle keeps its samples within target.
@@ -444,23 +469,31 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
             'option: for &(_, k) in &options {
                 let e = star[k];
                 let u = tin.ends(e).1;
-                fan.clear();
                 for &g in &star {
                     let (w, x) = (tin.ends(g).1, tin.apex(g));
                     if w == u || x == u {
                         continue;
                     }
                     let tri = [tin.pts[u as usize], tin.pts[w as usize], tin.pts[x as usize]];
-                    let found = scan_for_queue(queue.grid, queue.clip, lines, &tri);
-                    let covers = match found.coverage {
+                    let target = queue.target.over(&tri);
+                    // Only a sample beyond the target matters, and the first
+                    // one ends the scan.
+                    let mut beyond = false;
+                    let coverage = scan_triangle(queue.grid, queue.clip, &tri, |i, j, err| {
+                        if err > target && !lines.is_vertex(i, j) {
+                            beyond = true;
+                            return f64::INFINITY;
+                        }
+                        target
+                    });
+                    let covers = match coverage {
                         Some(Coverage::Valid) => true,
                         Some(Coverage::NoSample) => !voids,
                         _ => false,
                     };
-                    if !covers || found.max_err > queue.target.over(&tri) {
+                    if !covers || beyond {
                         continue 'option;
                     }
-                    fan.push(([u, w, x], found));
                 }
                 chosen = Some(e);
                 break;
@@ -472,12 +505,7 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
                     }
                     tin.collapse(e, &mut changed);
                     for &t in &changed {
-                        let corners = tin.triangle(t);
-                        let found = fan.iter().find(|(c, _)| corners.contains(&c[1]) && corners.contains(&c[2]));
-                        match found {
-                            Some(&(_, f)) => queue.record(t, tin.version(t), f, queue.target.over(&tin.corners(t))),
-                            None => queue.push(tin, lines, t),
-                        }
+                        queue.push(tin, lines, t);
                     }
                     removed += 1;
                 }
@@ -1388,8 +1416,9 @@ fn scan_for_queue(grid: &Window, clip: (Span, Span), lines: &Lines, tri: &[V; 3]
 ///
 /// `visit` returns a floor: a sample no further off than it cannot change
 /// what `visit` finds, and is not visited (`NEG_INFINITY`: every valid
-/// sample counts). Once the worst is known, most samples cost one
-/// comparison, and a nodata sample (NaN) fails it too.
+/// sample counts; `INFINITY`: stop, the answer is known). Once the worst is
+/// known, most samples cost one comparison, and a nodata sample (NaN) fails
+/// it too.
 fn scan_triangle(
     grid: &Window,
     clip: (Span, Span),
@@ -1443,6 +1472,9 @@ fn scan_triangle(
             if err > floor {
                 any = true;
                 floor = visit(i as u32, j as u32, err);
+                if floor == f64::INFINITY {
+                    return Some(Coverage::Valid);
+                }
             }
         }
     }
