@@ -8,14 +8,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use terrachunk::config::{Config, VertexCache};
+use terrachunk::config::{Config, Thin, VertexCache};
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::build;
 use terrachunk::verify::verify;
 
 use crate::common::{
     all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, options, rewrite_glb, tileset, verified,
-    write_asc,
+    with_config, write_asc,
 };
 
 // ---------------------------------------------------------------- real data
@@ -43,6 +43,38 @@ fn real_fixtures_verify_and_pass_the_khronos_validator() {
         assert_eq!(v.levels.values().map(|l| l.chunks).sum::<usize>(), chunks);
         tileset_matches_contract(&out, name);
     }
+}
+
+/// Thinning every level (`thin = "all"`) keeps every promise `verify`
+/// checks, over voids and below sea level too, and passes the validator;
+/// each setting takes triangles out where the one before it kept them:
+/// `leaves` from the deepest level, `all` from every level.
+#[test]
+fn thinning_keeps_every_promise_and_takes_triangles_out() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mut leaf, mut total) = ([0usize; 3], [0usize; 3]);
+    for (name, max_error) in [
+        ("mount_st_helens_30m.tif", 2.0),
+        ("west_bijou_gully_3m.asc", 0.25),
+        ("seamount_crop_f32.exr", 0.5),
+        ("salish_sea_topobathy_f32.tif", 5.0),
+    ] {
+        for (k, thin) in [Thin::None, Thin::Leaves, Thin::All].into_iter().enumerate() {
+            let out = tmp.path().join(format!("{name}-{k}"));
+            let cfg = Config { max_error_m: max_error, thin, ..Config::default() };
+            let report = build(&with_config(&fixture(name), &out, cfg)).unwrap();
+            let v = verified(&out);
+            if thin == Thin::All {
+                let files = khronos_validate(&out);
+                assert_eq!(files["files"], report.levels.iter().map(|l| l.chunks).sum::<usize>() as u64);
+                assert_eq!(v.levels.len(), report.levels.len());
+            }
+            leaf[k] += report.levels.last().unwrap().triangles;
+            total[k] += report.levels.iter().map(|l| l.triangles).sum::<usize>();
+        }
+    }
+    assert!(leaf[1] < leaf[0], "leaves: thinned {} against {}", leaf[1], leaf[0]);
+    assert!(total[2] < total[1], "all levels: thinned {} against {}", total[2], total[1]);
 }
 
 #[test]
