@@ -365,139 +365,64 @@ fn insert_samples(
 
 /// Step 5: takes out the free vertices (inserted in step 4, every edge
 /// free) that the mesh no longer needs. Greedy insertion places its early
-/// points against large triangles; once the later ones are in, many of
-/// them can go: a vertex is collapsed onto the neighbour that leaves its
-/// triangles furthest within their targets, where every triangle stays
-/// counter-clockwise and every sample within its target. The triangles
-/// around a free vertex lie inside one parent triangle (no fixed edge
-/// crosses them), so the mesh still refines its parent's. Passes run over
-/// the vertices in order until one takes none out.
+/// points against large triangles; once the later ones are in, some can
+/// go. Each free vertex v is tried, in vertex order, as a collapse onto
+/// each neighbour u, cheapest first by v's own sample against the new
+/// triangle it falls in; the first whose new triangles all stay
+/// counter-clockwise and keep every sample within target is taken. The
+/// triangles around a free vertex lie inside one parent triangle (no fixed
+/// edge runs between them), so the mesh still refines its parent's. Up to
+/// four passes; each after the first visits only the neighbours of the
+/// vertices the last one took out (elsewhere nothing changed).
 fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
     let voids = queue.grid.grid.filled.is_some();
     let (mut star, mut changed, mut options, mut probes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    // Each pass after the first visits only the neighbours of vertices the
-    // last one took out: elsewhere nothing changed.
     let mut visit = vec![true; tin.pts.len()];
     let mut next = vec![false; tin.pts.len()];
     for _ in 0..4 {
         let mut removed = 0;
         for v in 0..tin.pts.len() as u32 {
-            if !visit[v as usize] {
-                continue;
-            }
             let p = tin.pts[v as usize];
-            if !whole(p.x) || !whole(p.z) || !tin.free_star(v, &mut star) {
+            if !visit[v as usize] || !whole(p.x) || !whole(p.z) || !tin.free_star(v, &mut star) {
                 continue;
             }
+            let scan = |t: u32| queue.scans.get(t as usize).filter(|s| s.version == tin.version(t)).map(|s| s.found);
             // Over a DEM with voids, only where every triangle around v
             // covers data: the holes keep their shape.
-            if voids
-                && star.iter().any(|&g| {
-                    let t = g / 3;
-                    queue
-                        .scans
-                        .get(t as usize)
-                        .is_none_or(|s| s.version != tin.version(t) || s.found.coverage != Some(Coverage::Valid))
-                })
-            {
+            if voids && star.iter().any(|&g| scan(g / 3).is_none_or(|s| s.coverage != Some(Coverage::Valid))) {
                 continue;
             }
-            let (i, j) = (p.z as u32, p.x as u32);
-            lines.unmark_vertex(i, j);
             // The samples that decide first: v's own (it went in for being
             // far off, and mostly still is) and each old triangle's worst
             // (within the target, mostly close to it).
             probes.clear();
             probes.push((p.x, p.z, p.h));
-            for &g in &star {
-                let t = g / 3;
-                if let Some(sc) = queue.scans.get(t as usize).filter(|sc| sc.version == tin.version(t))
-                    && let Some((_, wi, wj)) = sc.found.worst
-                {
-                    probes.push((f64::from(wj), f64::from(wi), f64::from(queue.grid.sample(wi as usize, wj as usize))));
-                }
-            }
-            // The neighbours v may go onto, nearest first by v's own sample
-            // against the new triangle it falls in: cheap tests, no scan,
-            // that rule most out.
+            probes.extend(
+                star.iter().filter_map(|&g| scan(g / 3)?.worst).map(|(_, i, j)| {
+                    (f64::from(j), f64::from(i), f64::from(queue.grid.sample(i as usize, j as usize)))
+                }),
+            );
+            // The neighbours v may go onto, by v's own error in its new
+            // triangle, each past cheap tests that need no scan.
             options.clear();
-            'onto: for (k, &e) in star.iter().enumerate() {
+            for (k, &e) in star.iter().enumerate() {
                 let u = tin.ends(e).1;
-                let pu = tin.pts[u as usize];
-                for &g in &star {
-                    let (w, x) = (tin.ends(g).1, tin.apex(g));
-                    if w == u || x == u {
-                        continue;
-                    }
-                    let (b, c) = (tin.pts[w as usize], tin.pts[x as usize]);
-                    let o = robust::orient2d(
-                        Coord { x: pu.x, y: pu.z },
-                        Coord { x: b.x, y: b.z },
-                        Coord { x: c.x, y: c.z },
-                    );
-                    if o <= 1e-6 {
-                        continue 'onto;
-                    }
+                if !fan(tin, &star, u).all(|t| counter_clockwise(&t)) {
+                    continue;
                 }
-                let mut own = 0.0;
-                for (n, &(px, pz, ph)) in probes.iter().enumerate() {
-                    for &g in &star {
-                        let (w, x) = (tin.ends(g).1, tin.apex(g));
-                        if w == u || x == u {
-                            continue;
-                        }
-                        let (b, c) = (tin.pts[w as usize], tin.pts[x as usize]);
-                        let [_, l1, l2] = plane_weights(&pu, &b, &c, px, pz);
-                        if l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
-                            let h = (1.0 - l1 - l2) * pu.h + l1 * b.h + l2 * c.h;
-                            let off = (ph - h).abs() / queue.target.over(&[pu, b, c]).max(1e-300);
-                            if off > 1.0 {
-                                continue 'onto;
-                            }
-                            if n == 0 {
-                                own = off;
-                            }
-                            break;
-                        }
-                    }
+                let mut offs = probes.iter().map(|&q| probe_off(fan(tin, &star, u), q, &queue.target));
+                let own = offs.next().unwrap_or(0.0);
+                if own <= 1.0 && offs.all(|o| o <= 1.0) {
+                    options.push((own, k));
                 }
-                options.push((own, k));
             }
             options.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            // The first whose every triangle keeps its samples within target.
-            let mut chosen = None;
-            'option: for &(_, k) in &options {
-                let e = star[k];
-                let u = tin.ends(e).1;
-                for &g in &star {
-                    let (w, x) = (tin.ends(g).1, tin.apex(g));
-                    if w == u || x == u {
-                        continue;
-                    }
-                    let tri = [tin.pts[u as usize], tin.pts[w as usize], tin.pts[x as usize]];
-                    let target = queue.target.over(&tri);
-                    // Only a sample beyond the target matters, and the first
-                    // one ends the scan.
-                    let mut beyond = false;
-                    let coverage = scan_triangle(queue.grid, queue.clip, &tri, |i, j, err| {
-                        if err > target && !lines.is_vertex(i, j) {
-                            beyond = true;
-                            return f64::INFINITY;
-                        }
-                        target
-                    });
-                    let covers = match coverage {
-                        Some(Coverage::Valid) => true,
-                        Some(Coverage::NoSample) => !voids,
-                        _ => false,
-                    };
-                    if !covers || beyond {
-                        continue 'option;
-                    }
-                }
-                chosen = Some(e);
-                break;
-            }
+            let (i, j) = (p.z as u32, p.x as u32);
+            lines.unmark_vertex(i, j);
+            let chosen = options.iter().map(|&(_, k)| star[k]).find(|&e| {
+                fan(tin, &star, tin.ends(e).1)
+                    .all(|tri| fits(queue.grid, queue.clip, lines, &queue.target, &tri, voids))
+            });
             match chosen {
                 Some(e) => {
                     for &g in &star {
@@ -518,6 +443,55 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
         std::mem::swap(&mut visit, &mut next);
         next.fill(false);
     }
+}
+
+/// The triangles a collapse of v onto its neighbour u leaves: each of v's
+/// triangles (`star`, its half-edges out) that does not hold u, with u for v.
+fn fan<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = [V; 3]> + 'a {
+    star.iter()
+        .map(|&g| (tin.ends(g).1, tin.apex(g)))
+        .filter(move |&(w, x)| w != u && x != u)
+        .map(move |(w, x)| [u, w, x].map(|k| tin.pts[k as usize]))
+}
+
+/// Counter-clockwise by more than rounding.
+fn counter_clockwise([a, b, c]: &[V; 3]) -> bool {
+    robust::orient2d(Coord { x: a.x, y: a.z }, Coord { x: b.x, y: b.z }, Coord { x: c.x, y: c.z }) > 1e-6
+}
+
+/// A sample's error against the fan triangle it falls in, as a share of
+/// that triangle's target (0 if none holds it).
+fn probe_off(fan: impl Iterator<Item = [V; 3]>, (x, z, h): (f64, f64, f64), target: &Targets) -> f64 {
+    for tri in fan {
+        let [a, b, c] = &tri;
+        let [_, l1, l2] = plane_weights(a, b, c, x, z);
+        if l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
+            let plane = (1.0 - l1 - l2) * a.h + l1 * b.h + l2 * c.h;
+            return (h - plane).abs() / target.over(&tri).max(1e-300);
+        }
+    }
+    0.0
+}
+
+/// Whether every sample in `tri` that is not a vertex lies within its
+/// target, and the triangle covers data (or, on a DEM without voids, lies
+/// between samples): the scan stops at the first sample beyond.
+fn fits(grid: &Window, clip: (Span, Span), lines: &Lines, target: &Targets, tri: &[V; 3], voids: bool) -> bool {
+    let target = target.over(tri);
+    let mut beyond = false;
+    let coverage = scan_triangle(grid, clip, tri, |i, j, err| {
+        if err > target && !lines.is_vertex(i, j) {
+            beyond = true;
+            return f64::INFINITY;
+        }
+        target
+    });
+    let covers = match coverage {
+        Some(Coverage::Valid) => true,
+        Some(Coverage::NoSample) => !voids,
+        _ => false,
+    };
+    covers && !beyond
 }
 
 /// Barycentric weights of (x, z) in triangle (a, b, c); zeros if degenerate.
