@@ -464,7 +464,7 @@ fn counter_clockwise([a, b, c]: &[V; 3]) -> bool {
 fn probe_off(fan: impl Iterator<Item = [V; 3]>, (x, z, h): (f64, f64, f64), target: &Targets) -> f64 {
     for tri in fan {
         let [a, b, c] = &tri;
-        let [_, l1, l2] = plane_weights(a, b, c, x, z);
+        let Some([_, l1, l2]) = plane_weights(a, b, c, x, z) else { continue };
         if l1 >= -1e-9 && l2 >= -1e-9 && l1 + l2 <= 1.0 + 1e-9 {
             let plane = (1.0 - l1 - l2) * a.h + l1 * b.h + l2 * c.h;
             return (h - plane).abs() / target.over(&tri).max(1e-300);
@@ -494,15 +494,16 @@ fn fits(grid: &Window, clip: (Span, Span), lines: &Lines, target: &Targets, tri:
     covers && !beyond
 }
 
-/// Barycentric weights of (x, z) in triangle (a, b, c); zeros if degenerate.
-fn plane_weights(a: &V, b: &V, c: &V, x: f64, z: f64) -> [f64; 3] {
+/// Barycentric weights of (x, z) in triangle (a, b, c); `None` if it has
+/// no area.
+fn plane_weights(a: &V, b: &V, c: &V, x: f64, z: f64) -> Option<[f64; 3]> {
     let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
     if det.abs() < 1e-300 {
-        return [0.0; 3];
+        return None;
     }
     let l1 = ((x - a.x) * (c.z - a.z) - (c.x - a.x) * (z - a.z)) / det;
     let l2 = ((b.x - a.x) * (z - a.z) - (x - a.x) * (b.z - a.z)) / det;
-    [1.0 - l1 - l2, l1, l2]
+    Some([1.0 - l1 - l2, l1, l2])
 }
 
 /// One part of a chunk filled on its own ([`insert_by_parts`]).
@@ -1071,13 +1072,10 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested:
 /// triangle refines a parent triangle).
 fn parent_height_in(tin: &Tin, t: u32, p: Coord<f64>) -> f64 {
     let [a, b, c] = tin.corners(t);
-    let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
-    if det.abs() < 1e-300 {
-        return a.ph;
+    match plane_weights(&a, &b, &c, p.x, p.y) {
+        Some([_, l1, l2]) => (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph,
+        None => a.ph,
     }
-    let l1 = ((p.x - a.x) * (c.z - a.z) - (c.x - a.x) * (p.y - a.z)) / det;
-    let l2 = ((b.x - a.x) * (p.y - a.z) - (p.x - a.x) * (b.z - a.z)) / det;
-    (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph
 }
 
 /// The parent surface's height at `p` on (or next to) half-edge `e`.
@@ -1509,7 +1507,7 @@ fn finish(
     let mut vertices = Vec::with_capacity(tin.pts.len());
     for (k, v) in tin.pts.iter().enumerate() {
         id.push(vertices.len() as u32);
-        if !spec.thin || tin.is_live(k as u32) {
+        if tin.is_live(k as u32) {
             vertices.push(MeshVertex { x: v.x, z: v.z, h: v.h, ph: v.ph });
         }
     }
