@@ -26,7 +26,7 @@ use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS, Span};
-use crate::texture::source::{generate, load_image};
+use crate::texture::source::{generate, generated_to_px, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureError, TextureExtras, TextureSource, Texturer};
 
 /// What `build` needs.
@@ -339,39 +339,38 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     let t = Instant::now();
     let filled = void_fill(hf);
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
-    let t_plan = t.elapsed();
-    let t = Instant::now();
-    let colour = match &opts.texture {
-        TextureSource::None => None,
-        TextureSource::Generated => Some(generate(hf, filled.as_deref(), &opts.config)?),
-        TextureSource::Image(path) => Some(load_image(path, hf)?),
+    let t_fill = t.elapsed();
+    // The plan needs only the colour source's scale, which a generated
+    // map's size gives before it is made: the map is generated while the
+    // plan's estimate meshes its windows (both in parallel inside, each
+    // filling the other's idle moments). An image is loaded first.
+    let timed = |f: &dyn Fn() -> Result<ColourSource, BuildError>| {
+        let t = Instant::now();
+        f().map(|c| (c, t.elapsed()))
     };
-    let t_source = t.elapsed();
-    let t = Instant::now();
+    let (colour, (plan, t_estimate)) = match &opts.texture {
+        TextureSource::None => (None, plan_tree(hf, &grid, opts, None)),
+        TextureSource::Image(path) => {
+            let colour = timed(&|| Ok(load_image(path, hf)?))?;
+            let to_px = colour.0.to_px;
+            (Some(colour), plan_tree(hf, &grid, opts, Some(to_px)))
+        }
+        TextureSource::Generated => {
+            let (colour, plan) = rayon::join(
+                || timed(&|| Ok(generate(hf, filled.as_deref(), &opts.config)?)),
+                || plan_tree(hf, &grid, opts, Some(generated_to_px(hf, &opts.config))),
+            );
+            (Some(colour?), plan)
+        }
+    };
+    let (colour, t_source) = colour.map_or((None, Duration::ZERO), |(c, t)| (Some(c), t));
+    let t_plan = t_fill + t_estimate;
     // A coarse chunk that cannot meet its δ in `max_chunk_vertices` (noise, huge
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
-    // A wide leaf's texture may hit `max_texture_px` only where its texels
-    // still keep the bound T_g ≤ δ/τ_max, or where the source's own texels
-    // are reached first: wider leaves must not blur what narrower ones showed.
-    let widest_leaf = colour.as_ref().map_or(u32::MAX, |c| {
-        let cfg = &opts.config;
-        let texels = f64::from(cfg.max_texture_px.saturating_sub(1));
-        let by_source = texels / c.to_px[0].1.abs().max(c.to_px[1].1.abs()).max(1e-9);
-        let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
-        by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
-    });
-    let max_vertices = opts.config.max_chunk_vertices as usize;
-    let dense = dense_leaf_cells(opts.config.max_chunk_vertices);
-    let mut estimate = Estimate::new(&grid, opts.config.max_error_m, max_vertices);
-    let mut leaf_cells = match opts.config.leaf_cells {
-        Some(c) => c,
-        None => estimate.leaf_cells(widest_leaf),
-    };
-    let mut refine = estimate.refine_levels(leaf_cells);
+    let Planned { mut estimate, mut leaf_cells, mut refine } = plan;
     let mut estimated = refine;
-    // The estimate plans the tree: its time is the plan's, not the chunks'.
-    let t_plan = t_plan + t.elapsed();
+    let dense = dense_leaf_cells(opts.config.max_chunk_vertices);
     let t = Instant::now();
     let attempts = Instant::now();
     loop {
@@ -407,6 +406,44 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             Err(e) => return Err(e),
         }
     }
+}
+
+/// What [`plan_tree`] chose: the leaf width and the refine levels to try
+/// first, and the estimate that measured them (asked again if the build
+/// needs narrower leaves).
+struct Planned<'g> {
+    estimate: Estimate<'g>,
+    leaf_cells: u32,
+    refine: u32,
+}
+
+/// Chooses the leaf width (unless set) and the refine levels, and how long
+/// that took. `to_px`: the colour source's DEM-to-pixel scale, if textured.
+///
+/// A wide leaf's texture may hit `max_texture_px` only where its texels
+/// still keep the bound T_g ≤ δ/τ_max, or where the source's own texels
+/// are reached first: wider leaves must not blur what narrower ones showed.
+fn plan_tree<'g>(
+    hf: &Heightfield,
+    grid: &'g Grid<'g>,
+    opts: &BuildOptions,
+    to_px: Option<[(f64, f64); 2]>,
+) -> (Planned<'g>, Duration) {
+    let t = Instant::now();
+    let cfg = &opts.config;
+    let widest_leaf = to_px.map_or(u32::MAX, |to_px| {
+        let texels = f64::from(cfg.max_texture_px.saturating_sub(1));
+        let by_source = texels / to_px[0].1.abs().max(to_px[1].1.abs()).max(1e-9);
+        let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
+        by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
+    });
+    let mut estimate = Estimate::new(grid, cfg.max_error_m, cfg.max_chunk_vertices as usize);
+    let leaf_cells = match cfg.leaf_cells {
+        Some(c) => c,
+        None => estimate.leaf_cells(widest_leaf),
+    };
+    let refine = estimate.refine_levels(leaf_cells);
+    (Planned { estimate, leaf_cells, refine }, t.elapsed())
 }
 
 /// Most surface vertices an average chunk may hold when `leaf_cells` is left
@@ -516,66 +553,93 @@ impl<'g> Estimate<'g> {
         // a δ not yet measured lies either below the chain, which continues,
         // or above its top: a TIN of its own.
         if self.chains[set].as_ref().is_some_and(|c| c.0 < k) {
-            let (d, _) = self.measure(k, set, None);
+            let d = self.measure(&[k], set, None).0[0];
             self.by_k[set][k] = Some(d);
             return d;
         }
-        let (mut finest, mut tins) = match self.chains[set].take() {
-            Some(c) => c,
-            None => {
-                let start = k.max(self.top);
-                let (d, tins) = self.measure(start, set, None);
-                self.by_k[set][start] = Some(d);
-                (start, tins)
-            }
+        let (finest, tins) = match self.chains[set].take() {
+            Some((finest, tins)) => (finest, Some(tins)),
+            None => (k.max(self.top) + 1, None),
         };
-        while finest > k {
-            finest -= 1;
-            let (d, next) = self.measure(finest, set, Some(&tins));
-            self.by_k[set][finest] = Some(d);
-            tins = next;
+        let ks: Vec<usize> = (k..finest).rev().collect();
+        let (densities, tins) = self.measure(&ks, set, tins.as_deref());
+        for (&k, d) in ks.iter().zip(densities) {
+            self.by_k[set][k] = Some(d);
         }
-        self.chains[set] = Some((finest, tins));
+        self.chains[set] = Some((k, tins));
         self.by_k[set][k].expect("measured above")
     }
 
-    /// The density at δ = max_error_m · 2^k on window set `set`, each
-    /// window's TIN fresh or continued from `from` (the same windows'
-    /// TINs at a larger δ), and the TINs. The windows' TINs are
-    /// independent: meshed in parallel, summed in order.
-    fn measure(&self, k: usize, set: usize, from: Option<&[Option<ChunkMesh>]>) -> (Density, Vec<Option<ChunkMesh>>) {
-        let (grid, delta_m) = (self.grid, self.max_error_m * 2f64.powi(k as i32));
-        let tins: Vec<Option<ChunkMesh>> = self.windows[set]
+    /// The densities at δ = max_error_m · 2^k for each k of `ks` in turn
+    /// (largest first) on window set `set`, and the windows' TINs at the
+    /// last. Each window's TIN at the first k is fresh or continued from
+    /// `from` (the same windows' TINs at a larger δ), and each later one
+    /// continued from the one before. The windows are independent: each
+    /// walks its whole chain as one parallel task (one task per δ waited
+    /// for the slowest window at every δ), and the counts are summed in
+    /// window order.
+    fn measure(
+        &self,
+        ks: &[usize],
+        set: usize,
+        from: Option<&[Option<ChunkMesh>]>,
+    ) -> (Vec<Density>, Vec<Option<ChunkMesh>>) {
+        let grid = self.grid;
+        // Per window: its vertex count on and off its border at each k, and its last TIN.
+        let walked: Vec<(Vec<Option<(usize, usize)>>, Option<ChunkMesh>)> = self.windows[set]
             .par_iter()
             .enumerate()
             .map(|(w, &(xs, zs, _))| {
-                let spec = match from.and_then(|f| f[w].as_ref()) {
-                    Some(tin) => ChunkSpec::continued((xs, zs), delta_m, tin),
-                    None => ChunkSpec::unconstrained((xs, zs), delta_m),
-                };
-                build_chunk(grid, &spec).ok()
+                let mut tin: Option<ChunkMesh> = None;
+                let counts = ks
+                    .iter()
+                    .enumerate()
+                    .map(|(n, &k)| {
+                        let delta_m = self.max_error_m * 2f64.powi(k as i32);
+                        let before = if n == 0 { from.and_then(|f| f[w].as_ref()) } else { tin.as_ref() };
+                        let spec = match before {
+                            Some(tin) => ChunkSpec::continued((xs, zs), delta_m, tin),
+                            None => ChunkSpec::unconstrained((xs, zs), delta_m),
+                        };
+                        tin = build_chunk(grid, &spec).ok();
+                        tin.as_ref().map(|mesh| {
+                            let on_border = |v: &&MeshVertex| {
+                                v.x == f64::from(xs.0)
+                                    || v.x == f64::from(xs.1)
+                                    || v.z == f64::from(zs.0)
+                                    || v.z == f64::from(zs.1)
+                            };
+                            (mesh.vertices.iter().filter(on_border).count(), mesh.vertices.len())
+                        })
+                    })
+                    .collect();
+                (counts, tin)
             })
             .collect();
-        let (mut interior, mut border, mut samples, mut edge_cells, mut densest) =
-            (0usize, 0usize, 0usize, 0usize, 0.0f64);
-        for (&(xs, zs, valid), mesh) in self.windows[set].iter().zip(&tins) {
-            let Some(mesh) = mesh else { continue };
-            let on_border = |v: &&MeshVertex| {
-                v.x == f64::from(xs.0) || v.x == f64::from(xs.1) || v.z == f64::from(zs.0) || v.z == f64::from(zs.1)
-            };
-            let b = mesh.vertices.iter().filter(on_border).count();
-            border += b;
-            interior += mesh.vertices.len() - b;
-            edge_cells += 2 * (xs.1 - xs.0 + zs.1 - zs.0) as usize;
-            samples += valid;
-            densest = densest.max(mesh.vertices.len() as f64 / valid as f64);
-        }
-        let d = if samples == 0 {
-            Density::default()
-        } else {
-            Density { interior: interior as f64 / samples as f64, border: border as f64 / edge_cells as f64, densest }
-        };
-        (d, tins)
+        let densities = (0..ks.len())
+            .map(|n| {
+                let (mut interior, mut border, mut samples, mut edge_cells, mut densest) =
+                    (0usize, 0usize, 0usize, 0usize, 0.0f64);
+                for (&(xs, zs, valid), (counts, _)) in self.windows[set].iter().zip(&walked) {
+                    let Some((b, all)) = counts[n] else { continue };
+                    border += b;
+                    interior += all - b;
+                    edge_cells += 2 * (xs.1 - xs.0 + zs.1 - zs.0) as usize;
+                    samples += valid;
+                    densest = densest.max(all as f64 / valid as f64);
+                }
+                if samples == 0 {
+                    Density::default()
+                } else {
+                    Density {
+                        interior: interior as f64 / samples as f64,
+                        border: border as f64 / edge_cells as f64,
+                        densest,
+                    }
+                }
+            })
+            .collect();
+        (densities, walked.into_iter().map(|(_, tin)| tin).collect())
     }
 
     /// The leaf width, in cells, of the shallowest tree whose chunks hold at

@@ -184,14 +184,27 @@ fn place(
     Ok((to_px, format!("georeferenced ({})", crs_name(&g.crs))))
 }
 
+/// The generated colour map's width and height in pixels:
+/// `hillshade_multiple` pixels per sample spacing, corner to corner.
+fn generated_size(hf: &Heightfield, cfg: &Config) -> [usize; 2] {
+    let m = cfg.hillshade_multiple;
+    [hf.width, hf.height].map(|n| ((n - 1) as f64 * m).round() as usize + 1)
+}
+
+/// The generated colour map's [`ColourSource::to_px`], known before it is
+/// made: the plan, which needs it, runs while the map is generated.
+pub fn generated_to_px(hf: &Heightfield, cfg: &Config) -> [(f64, f64); 2] {
+    let [width, height] = generated_size(hf, cfg);
+    [(0.0, (width - 1) as f64 / (hf.width - 1) as f64), (0.0, (height - 1) as f64 / (hf.height - 1) as f64)]
+}
+
 /// The generated colour map: hypsometric tint × hillshade, at
 /// `cfg.hillshade_multiple` texels per sample spacing. `filled` (void-filled
 /// heights) gives nodata samples a plausible colour where a triangle
 /// reaches over them.
 pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Result<ColourSource, TextureError> {
     let m = cfg.hillshade_multiple;
-    let width = ((hf.width - 1) as f64 * m).round() as usize + 1;
-    let height = ((hf.height - 1) as f64 * m).round() as usize + 1;
+    let [width, height] = generated_size(hf, cfg);
     if width.checked_mul(height).is_none_or(|n| n > MAX_SOURCE_PIXELS) {
         return Err(TextureError::TooLarge(format!(
             "hillshade_multiple = {m} makes a {width} × {height} colour map ({:.1} GB of RGB); lower it",
@@ -221,26 +234,39 @@ pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Resul
     // where `at` gives the sample itself, so it is read directly.
     let on_samples = width == hf.width && height == hf.height;
     let at = |x: f64, z: f64| if on_samples { surface.at_sample(z as usize, x as usize) } else { surface.at(x, z) };
+    let value = |h: f32| if h.is_nan() { 0.0 } else { f64::from(h) };
     rgb.par_chunks_mut(width * 3).enumerate().for_each(|(r, row)| {
         let z = gz(r);
         let (zm, zp) = ((z - ez).max(0.0), (z + ez).min((hf.height - 1) as f64));
+        // On the samples, a pixel whose four neighbours are samples off the
+        // last row and column reads them from the rows directly: the same
+        // values `at` gives, with the same steps (two cells) between them.
+        let rows = (on_samples && r >= 1 && r + 2 < height)
+            .then(|| [r - 1, r, r + 1].map(|i| &heights[i * hf.width..(i + 1) * hf.width]));
         for c in 0..width {
-            let x = gx(c);
-            let (xm, xp) = ((x - ex).max(0.0), (x + ex).min((hf.width - 1) as f64));
-            let dx = (at(xp, z) - at(xm, z)) / ((xp - xm) * sx);
-            let dz = (at(x, zp) - at(x, zm)) / ((zp - zm) * sz);
+            let (dx, dz, here) = match rows {
+                Some([up, mid, down]) if c >= 1 && c + 2 < width => (
+                    (value(mid[c + 1]) - value(mid[c - 1])) / (2.0 * sx),
+                    (value(down[c]) - value(up[c])) / (2.0 * sz),
+                    value(mid[c]),
+                ),
+                _ => {
+                    let x = gx(c);
+                    let (xm, xp) = ((x - ex).max(0.0), (x + ex).min((hf.width - 1) as f64));
+                    ((at(xp, z) - at(xm, z)) / ((xp - xm) * sx), (at(x, zp) - at(x, zm)) / ((zp - zm) * sz), at(x, z))
+                }
+            };
             let n = [-dx, 1.0, -dz];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let lambert = ((n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]) / len).max(0.0);
             let light = (AMBIENT + (1.0 - AMBIENT) * lambert) / flat;
-            let colour = tint.at(at(x, z));
+            let colour = tint.at(here);
             for ch in 0..3 {
                 row[c * 3 + ch] = linear_to_srgb((f64::from(colour[ch]) * light) as f32);
             }
         }
     });
-    let to_px =
-        [(0.0, (width - 1) as f64 / (hf.width - 1) as f64), (0.0, (height - 1) as f64 / (hf.height - 1) as f64)];
+    let to_px = generated_to_px(hf, cfg);
     Ok(ColourSource {
         width,
         height,
