@@ -408,6 +408,10 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     }
 }
 
+/// One estimate window's chain: (vertices on its border, all its
+/// vertices) at each δ, `None` where its TIN failed, and its last TIN.
+type WindowChain = (Vec<Option<(usize, usize)>>, Option<ChunkMesh>);
+
 /// What [`plan_tree`] chose: the leaf width and the refine levels to try
 /// first, and the estimate that measured them (asked again if the build
 /// needs narrower leaves).
@@ -586,7 +590,7 @@ impl<'g> Estimate<'g> {
     ) -> (Vec<Density>, Vec<Option<ChunkMesh>>) {
         let grid = self.grid;
         // Per window: its vertex count on and off its border at each k, and its last TIN.
-        let walked: Vec<(Vec<Option<(usize, usize)>>, Option<ChunkMesh>)> = self.windows[set]
+        let walked: Vec<WindowChain> = self.windows[set]
             .par_iter()
             .enumerate()
             .map(|(w, &(xs, zs, _))| {
