@@ -245,7 +245,8 @@ pub struct StageTimes {
     /// Void fill and tree plan (the leaf width and refine levels
     /// [`Estimate`] measures on sample windows).
     pub plan: f64,
-    /// Loading or generating the texture source.
+    /// Loading or generating the texture source. A generated one is made
+    /// while the plan runs, so the two overlap (`total` is wall time).
     pub texture_source: f64,
     /// All chunks: mesh, skirt, morph, encode, write.
     pub chunks: f64,
