@@ -591,7 +591,8 @@ fn insert_by_parts(
         .collect();
     // Join: the chunk's vertices so far, then each part's new ones in turn.
     let mut pts = tin.pts.clone();
-    let (mut tris, mut fixed, mut scans) = (Vec::new(), Vec::new(), Vec::new());
+    let mut scans = Vec::new();
+    let mut joined = Vec::new();
     for part in filled {
         let PartTin { tin: sub, scans: sub_scans, whole, .. } = part?;
         let (shared, first_new) = (whole.len(), pts.len());
@@ -600,11 +601,9 @@ fn insert_by_parts(
         for p in &sub.pts[shared..] {
             lines.mark_vertex(p.z as u32, p.x as u32);
         }
-        let id =
-            |v: u32| if (v as usize) < shared { whole[v as usize] } else { (first_new + v as usize - shared) as u32 };
+        let id: Vec<u32> =
+            whole.iter().copied().chain((first_new..first_new + sub.pts.len() - shared).map(|v| v as u32)).collect();
         for t in 0..sub.num_triangles() as u32 {
-            tris.push(sub.triangle(t).map(id));
-            fixed.push([0, 1, 2].map(|e| sub.is_fixed(3 * t + e)));
             // A scan of the triangle as it ended stands (the joined TIN
             // starts every triangle at version 0).
             let stands = sub_scans.get(t as usize).filter(|s| s.version == sub.version(t));
@@ -613,8 +612,10 @@ fn insert_by_parts(
                 None => Scan { version: u32::MAX, found: TriangleScan { max_err: 0.0, coverage: None, worst: None } },
             });
         }
+        joined.push((sub, id));
     }
-    Ok((Tin::from_soup(pts, &tris, &fixed), lines, scans))
+    let parts: Vec<(&Tin, &[u32])> = joined.iter().map(|(sub, id)| (sub, &id[..])).collect();
+    Ok((Tin::from_parts(pts, &parts), lines, scans))
 }
 
 /// The error a sample may keep, by what can move the surface over it once
