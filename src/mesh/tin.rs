@@ -672,8 +672,9 @@ mod tests {
     /// flags and out half-edges (thinning starts each vertex's star there).
     #[test]
     fn joined_parts_are_the_tin_their_soup_makes() {
-        // A 9 × 5 grid of points cut at x = 4 into two squares of 2 triangles,
-        // the cut fixed, each part then refined with points of its own.
+        // Two squares of 4 × 4 cells side by side, each two triangles, their
+        // shared side (x = 4) fixed in both; each part then refined with
+        // four points of its own.
         let mut pts: Vec<V> = Vec::new();
         let corner = |pts: &mut Vec<V>, x: f64, z: f64| {
             pts.push(v(x, z));
