@@ -107,16 +107,7 @@ impl Tin {
     /// `k` to corner `k + 1`). Edges used once are the border.
     pub fn from_soup(pts: Vec<V>, tris: &[[u32; 3]], fixed: &[[bool; 3]]) -> Tin {
         let n = tris.len() * 3;
-        let mut tin = Tin {
-            out: vec![NONE; pts.len()],
-            pts,
-            tv: Vec::with_capacity(n * 2),
-            twin: vec![NONE; n],
-            fixed: Vec::with_capacity(n * 2),
-            version: vec![0; tris.len()],
-            dirty: Vec::new(),
-            stack: Vec::new(),
-        };
+        let mut tin = Tin::unlinked(pts, tris.len());
         for (t, f) in tris.iter().zip(fixed) {
             for k in 0..3 {
                 tin.out[t[k] as usize] = tin.tv.len() as u32;
@@ -151,15 +142,36 @@ impl Tin {
             let (a, b) = (tin.tv[e as usize], tin.tv[next(e) as usize]);
             let around_b = &by_origin[start[b as usize] as usize..start[b as usize + 1] as usize];
             if let Some(&(f, _)) = around_b.iter().find(|&&(_, end)| end == a) {
-                let (e, f) = (e as usize, f as usize);
-                tin.twin[e] = f as u32;
-                tin.twin[f] = e as u32;
-                let fixed = tin.fixed[e] || tin.fixed[f];
-                tin.fixed[e] = fixed;
-                tin.fixed[f] = fixed;
+                tin.pair(e, f);
             }
         }
         tin
+    }
+
+    /// A TIN over `pts` with room for `triangles` triangles, none added
+    /// yet: every twin [`NONE`], every version 0.
+    fn unlinked(pts: Vec<V>, triangles: usize) -> Tin {
+        let n = triangles * 3;
+        Tin {
+            out: vec![NONE; pts.len()],
+            pts,
+            tv: Vec::with_capacity(n * 2),
+            twin: vec![NONE; n],
+            fixed: Vec::with_capacity(n * 2),
+            version: vec![0; triangles],
+            dirty: Vec::new(),
+            stack: Vec::new(),
+        }
+    }
+
+    /// Makes half-edges `e` and `f` twins; the edge is fixed if either was.
+    fn pair(&mut self, e: u32, f: u32) {
+        let (e, f) = (e as usize, f as usize);
+        self.twin[e] = f as u32;
+        self.twin[f] = e as u32;
+        let fixed = self.fixed[e] || self.fixed[f];
+        self.fixed[e] = fixed;
+        self.fixed[f] = fixed;
     }
 
     /// Joins TINs over pieces of one footprint that meet only along their
@@ -171,17 +183,7 @@ impl Tin {
     /// part's border look for theirs, in the other parts. (Fuji's root at
     /// 1 m: 13 ms through `from_soup`, on one thread while the other waits.)
     pub fn from_parts(pts: Vec<V>, parts: &[(&Tin, &[u32])]) -> Tin {
-        let n: usize = parts.iter().map(|(sub, _)| sub.tv.len()).sum();
-        let mut tin = Tin {
-            out: vec![NONE; pts.len()],
-            pts,
-            tv: Vec::with_capacity(n * 2),
-            twin: Vec::with_capacity(n * 2),
-            fixed: Vec::with_capacity(n * 2),
-            version: vec![0; n / 3],
-            dirty: Vec::new(),
-            stack: Vec::new(),
-        };
+        let mut tin = Tin::unlinked(pts, parts.iter().map(|(sub, _)| sub.num_triangles()).sum());
         // Half-edges with no twin in their part, by their ends' indices.
         let mut open: Vec<([u32; 2], u32)> = Vec::new();
         for &(sub, id) in parts {
@@ -192,10 +194,11 @@ impl Tin {
             for (k, &f) in sub.twin.iter().enumerate() {
                 let e = base + k as u32;
                 if f == NONE {
-                    let (a, b) = (tin.tv[e as usize], id[sub.tv[next(k as u32) as usize] as usize]);
+                    let (a, b) = (tin.tv[e as usize], tin.tv[(base + next(k as u32)) as usize]);
                     open.push(([a.min(b), a.max(b)], e));
+                } else {
+                    tin.twin[e as usize] = base + f;
                 }
-                tin.twin.push(if f == NONE { NONE } else { base + f });
             }
         }
         for (e, &a) in tin.tv.iter().enumerate() {
@@ -206,12 +209,7 @@ impl Tin {
         for pair in open.windows(2) {
             let ((k, e), (l, f)) = (pair[0], pair[1]);
             if k == l {
-                let (e, f) = (e as usize, f as usize);
-                tin.twin[e] = f as u32;
-                tin.twin[f] = e as u32;
-                let fixed = tin.fixed[e] || tin.fixed[f];
-                tin.fixed[e] = fixed;
-                tin.fixed[f] = fixed;
+                tin.pair(e, f);
             }
         }
         tin
