@@ -234,27 +234,24 @@ pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Resul
     // where `at` gives the sample itself, so it is read directly.
     let on_samples = width == hf.width && height == hf.height;
     let at = |x: f64, z: f64| if on_samples { surface.at_sample(z as usize, x as usize) } else { surface.at(x, z) };
-    let value = |h: f32| if h.is_nan() { 0.0 } else { f64::from(h) };
     rgb.par_chunks_mut(width * 3).enumerate().for_each(|(r, row)| {
         let z = gz(r);
         let (zm, zp) = ((z - ez).max(0.0), (z + ez).min((hf.height - 1) as f64));
         // On the samples, a pixel whose four neighbours are samples off the
-        // last row and column reads them from the rows directly: the same
-        // values `at` gives, with the same steps (two cells) between them.
-        let rows = (on_samples && r >= 1 && r + 2 < height)
-            .then(|| [r - 1, r, r + 1].map(|i| &heights[i * hf.width..(i + 1) * hf.width]));
+        // last row and column reads them directly (`Bilinear::sample`): the
+        // same values `at` gives, with the same steps (two cells) between them.
+        let inner_row = on_samples && r >= 1 && r + 2 < height;
         for c in 0..width {
-            let (dx, dz, here) = match rows {
-                Some([up, mid, down]) if c >= 1 && c + 2 < width => (
-                    (value(mid[c + 1]) - value(mid[c - 1])) / (2.0 * sx),
-                    (value(down[c]) - value(up[c])) / (2.0 * sz),
-                    value(mid[c]),
-                ),
-                _ => {
-                    let x = gx(c);
-                    let (xm, xp) = ((x - ex).max(0.0), (x + ex).min((hf.width - 1) as f64));
-                    ((at(xp, z) - at(xm, z)) / ((xp - xm) * sx), (at(x, zp) - at(x, zm)) / ((zp - zm) * sz), at(x, z))
-                }
+            let (dx, dz, here) = if inner_row && c >= 1 && c + 2 < width {
+                (
+                    (surface.sample(r, c + 1) - surface.sample(r, c - 1)) / (2.0 * sx),
+                    (surface.sample(r + 1, c) - surface.sample(r - 1, c)) / (2.0 * sz),
+                    surface.sample(r, c),
+                )
+            } else {
+                let x = gx(c);
+                let (xm, xp) = ((x - ex).max(0.0), (x + ex).min((hf.width - 1) as f64));
+                ((at(xp, z) - at(xm, z)) / ((xp - xm) * sx), (at(x, zp) - at(x, zm)) / ((zp - zm) * sz), at(x, z))
             };
             let n = [-dx, 1.0, -dz];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
