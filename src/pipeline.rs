@@ -345,23 +345,21 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     // map's size gives before it is made: the map is generated while the
     // plan's estimate meshes its windows (both in parallel inside, each
     // filling the other's idle moments). An image is loaded first.
-    let timed = |f: &dyn Fn() -> Result<ColourSource, BuildError>| {
-        let t = Instant::now();
-        f().map(|c| (c, t.elapsed()))
-    };
+    let plan = |to_px| timed(|| plan_tree(hf, &grid, opts, to_px));
     let (colour, (plan, t_estimate)) = match &opts.texture {
-        TextureSource::None => (None, plan_tree(hf, &grid, opts, None)),
+        TextureSource::None => (None, plan(None)),
         TextureSource::Image(path) => {
-            let colour = timed(&|| Ok(load_image(path, hf)?))?;
-            let to_px = colour.0.to_px;
-            (Some(colour), plan_tree(hf, &grid, opts, Some(to_px)))
+            let (colour, t) = timed(|| load_image(path, hf));
+            let colour = colour?;
+            let to_px = colour.to_px;
+            (Some((colour, t)), plan(Some(to_px)))
         }
         TextureSource::Generated => {
-            let (colour, plan) = rayon::join(
-                || timed(&|| Ok(generate(hf, filled.as_deref(), &opts.config)?)),
-                || plan_tree(hf, &grid, opts, Some(generated_to_px(hf, &opts.config))),
+            let ((colour, t), plan) = rayon::join(
+                || timed(|| generate(hf, filled.as_deref(), &opts.config)),
+                || plan(Some(generated_to_px(hf, &opts.config))),
             );
-            (Some(colour?), plan)
+            (Some((colour?, t)), plan)
         }
     };
     let (colour, t_source) = colour.map_or((None, Duration::ZERO), |(c, t)| (Some(c), t));
@@ -422,8 +420,8 @@ struct Planned<'g> {
     refine: u32,
 }
 
-/// Chooses the leaf width (unless set) and the refine levels, and how long
-/// that took. `to_px`: the colour source's DEM-to-pixel scale, if textured.
+/// Chooses the leaf width (unless set) and the refine levels. `to_px`: the
+/// colour source's DEM-to-pixel scale, if textured.
 ///
 /// A wide leaf's texture may hit `max_texture_px` only where its texels
 /// still keep the bound T_g ≤ δ/τ_max, or where the source's own texels
@@ -433,8 +431,7 @@ fn plan_tree<'g>(
     grid: &'g Grid<'g>,
     opts: &BuildOptions,
     to_px: Option<[(f64, f64); 2]>,
-) -> (Planned<'g>, Duration) {
-    let t = Instant::now();
+) -> Planned<'g> {
     let cfg = &opts.config;
     let widest_leaf = to_px.map_or(u32::MAX, |to_px| {
         let texels = f64::from(cfg.max_texture_px.saturating_sub(1));
@@ -448,7 +445,13 @@ fn plan_tree<'g>(
         None => estimate.leaf_cells(widest_leaf),
     };
     let refine = estimate.refine_levels(leaf_cells);
-    (Planned { estimate, leaf_cells, refine }, t.elapsed())
+    Planned { estimate, leaf_cells, refine }
+}
+
+/// What `f` returns and how long it took.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
+    let t = Instant::now();
+    (f(), t.elapsed())
 }
 
 /// Most surface vertices an average chunk may hold when `leaf_cells` is left
