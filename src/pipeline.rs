@@ -654,7 +654,13 @@ impl<'g> Estimate<'g> {
     /// most [`CHUNK_VERTICES`] vertices on average (leaves no narrower than
     /// 32 cells). Fewer levels nest fewer constraints into the leaves: on
     /// Fuji at 10 m, two levels instead of three take the leaves from 1.24
-    /// to 1.06 times the triangles of one unconstrained TIN. A tree whose
+    /// to 1.06 times the triangles of one unconstrained TIN. Each candidate
+    /// is judged as it would be built, with the refine levels
+    /// [`Self::refine_levels`] gives it: judged without them (as until stop
+    /// 29), Fuji's 64-cell tree at 0.25 m counted a root of some 138 000
+    /// vertices, a chunk no build makes, and lost to 32-cell leaves: 597
+    /// chunks of 1 600 vertices on average against 213 of 4 300, 2 % more
+    /// leaf triangles, and a build 19 % slower. A tree whose
     /// estimate is within [`CLOSE_CALL`] of the bound is measured again on
     /// up to 8 × 8 windows of 32² cells, which decides. Leaves wider
     /// than [`dense_leaf_cells`] are chosen only up to `widest` cells and
@@ -662,8 +668,6 @@ impl<'g> Estimate<'g> {
     /// `max_chunk_vertices` (see [`build_into`]).
     pub fn leaf_cells(&mut self, widest: u32) -> u32 {
         let grid = self.grid;
-        let valid_share = self.valid / (grid.width * grid.height) as f64;
-        let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
         let candidates = leaf_candidates(grid, self.max_error_m);
         let deepest = *candidates.last().expect("one candidate");
         for &c in &candidates {
@@ -675,22 +679,8 @@ impl<'g> Estimate<'g> {
             if !fits {
                 continue;
             }
-            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, c, 0);
-            let levels = tree.delta_m.len();
-            let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
-            // A level: its interior at the interior density, and every chunk's
-            // four borders (each shared border written by both chunks) at the
-            // border density, scaled by the share of valid samples.
-            let mut average = |set: usize| {
-                let vertices: f64 = (0..levels)
-                    .map(|l| {
-                        let d = self.density_on(levels - 1 - l, set);
-                        let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
-                        d.vertices(self.valid, perimeter, valid_share)
-                    })
-                    .sum();
-                vertices / chunks as f64
-            };
+            let refine = self.refine_levels(c);
+            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, c, refine);
             // 16 windows of 64² cells miss by up to 13 % (Fuji's root at
             // 20 m: 11 300 estimated, 10 233 built, where 64 windows of 64²,
             // the whole grid, say 9 600): they sample a quarter of Fuji and
@@ -699,15 +689,37 @@ impl<'g> Estimate<'g> {
             // four times as many places. On the 17 close calls among the
             // shared DEMs at 0.25, 1, 5 and 20 m (and Fuji's ladder) they
             // decided as 64 windows of 64² cells did, at a quarter of the cost.
-            let mut estimate = average(0);
+            let mut estimate = self.vertices_per_chunk(&tree, 0);
             if (estimate / CHUNK_VERTICES - 1.0).abs() <= CLOSE_CALL {
-                estimate = average(1);
+                estimate = self.vertices_per_chunk(&tree, 1);
             }
             if estimate <= CHUNK_VERTICES {
                 return c;
             }
         }
         deepest
+    }
+
+    /// The estimated surface vertices per chunk of `tree` (a plan over this
+    /// grid at this `max_error_m`), measured on window set `set` (0: the
+    /// first, 1: the close call's). A level holds its interior at the
+    /// interior density, and every chunk's four borders (each shared border
+    /// written by both chunks) at the border density, scaled by the share
+    /// of valid samples.
+    pub fn vertices_per_chunk(&mut self, tree: &ChunkTree, set: usize) -> f64 {
+        let grid = self.grid;
+        let valid_share = self.valid / (grid.width * grid.height) as f64;
+        let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
+        let levels = tree.delta_m.len();
+        let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+        let vertices: f64 = (0..levels)
+            .map(|l| {
+                let d = self.density_on(levels - 1 - l, set);
+                let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
+                d.vertices(self.valid, perimeter, valid_share)
+            })
+            .sum();
+        vertices / chunks as f64
     }
 
     /// [`valid_in`], counted once per footprint.

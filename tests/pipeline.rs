@@ -317,6 +317,32 @@ fn the_leaf_width_is_the_shallowest_tree_within_8000_vertices_per_chunk() {
     }
 }
 
+/// A leaf width is judged by the tree it would be built as: with the refine
+/// levels its too-dense upper chunks need. France–Italy (ETOPO2, 780 × 510,
+/// whole metres) at 0.1 m: 64-cell leaves without refine levels make upper
+/// chunks far over `max_chunk_vertices`, chunks no build makes, and they
+/// put the 64-cell tree over 8 000 vertices per chunk; judged so (until
+/// stop 29), the choice fell to 32-cell leaves, with one level more. Built
+/// with its refine levels, the 64-cell tree is within the bound, and it is
+/// the one chosen.
+#[test]
+fn a_leaf_width_is_judged_with_the_refine_levels_it_is_built_with() {
+    use terrachunk::mesh::decimate::Grid;
+    use terrachunk::pipeline::{CHUNK_VERTICES, Estimate};
+    use terrachunk::quadtree::ChunkTree;
+    let hf = terrachunk::dem::load(&[fixture("france_italy_etopo2.tif")], &Default::default()).unwrap();
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, None);
+    let mut estimate = Estimate::new(&grid, 0.1, 65_535);
+    let leaf = estimate.leaf_cells(u32::MAX);
+    let refine = estimate.refine_levels(leaf);
+    assert_eq!(leaf, 64, "leaf width");
+    assert!(refine > 0, "the 64-cell tree needs refine levels here");
+    let tree = |refine| ChunkTree::plan(hf.width, hf.height, 0.1, leaf, refine);
+    let (built, bare) = (estimate.vertices_per_chunk(&tree(refine), 0), estimate.vertices_per_chunk(&tree(0), 0));
+    assert!(built <= CHUNK_VERTICES, "as built: {built} vertices per chunk");
+    assert!(bare > CHUNK_VERTICES, "without refine levels: {bare} vertices per chunk");
+}
+
 #[test]
 fn vertex_cache_modes_reorder_the_same_triangles() {
     let dem = fixture("mount_st_helens_30m.tif");
