@@ -490,6 +490,9 @@ pub struct Estimate<'g> {
     /// Valid samples of the footprints [`Estimate::refine_levels`] counted:
     /// the top levels keep their footprints whatever the refine levels.
     valid_by_footprint: Vec<((Span, Span), usize)>,
+    /// Per footprint, its lowest and highest valid height (`None`: no valid
+    /// sample): which chunks end where they are flat ([`Self::built`]).
+    extents: std::collections::HashMap<(Span, Span), Option<(f32, f32)>>,
 }
 
 impl<'g> Estimate<'g> {
@@ -526,6 +529,7 @@ impl<'g> Estimate<'g> {
             top: top.min(31),
             valid,
             valid_by_footprint: Vec::new(),
+            extents: Default::default(),
         }
     }
 
@@ -655,8 +659,9 @@ impl<'g> Estimate<'g> {
     /// 32 cells). Fewer levels nest fewer constraints into the leaves: on
     /// Fuji at 10 m, two levels instead of three take the leaves from 1.24
     /// to 1.06 times the triangles of one unconstrained TIN. Each candidate
-    /// is judged as it would be built, with the refine levels
-    /// [`Self::refine_levels`] gives it: judged without them (as until stop
+    /// is judged as it would be built: over the chunks a build makes of it
+    /// (none below flat ground, [`Self::built`]), with the refine levels
+    /// [`Self::refine_levels`] gives it. Judged without them (as until stop
     /// 29), Fuji's 64-cell tree at 0.25 m counted a root of some 138 000
     /// vertices, a chunk no build makes, and lost to 32-cell leaves: 597
     /// chunks of 1 600 vertices on average against 213 of 4 300, 2 % more
@@ -702,24 +707,86 @@ impl<'g> Estimate<'g> {
 
     /// The estimated surface vertices per chunk of `tree` (a plan over this
     /// grid at this `max_error_m`), measured on window set `set` (0: the
-    /// first, 1: the close call's). A level holds its interior at the
-    /// interior density, and every chunk's four borders (each shared border
-    /// written by both chunks) at the border density, scaled by the share
-    /// of valid samples.
+    /// first, 1: the close call's), over the chunks a build would make of
+    /// it ([`Self::built`]). A level holds its interior at the interior
+    /// density, and every chunk's four borders (a border two chunks share
+    /// counted by both) at the border density, scaled by the share of valid
+    /// samples.
     pub fn vertices_per_chunk(&mut self, tree: &ChunkTree, set: usize) -> f64 {
         let grid = self.grid;
         let valid_share = self.valid / (grid.width * grid.height) as f64;
-        let (wc, hc) = ((grid.width - 1) as f64, (grid.height - 1) as f64);
-        let levels = tree.delta_m.len();
-        let chunks: usize = (0..levels).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
-        let vertices: f64 = (0..levels)
+        let built = self.built(tree);
+        let chunks: usize = built.iter().map(Vec::len).sum();
+        let vertices: f64 = (0..built.len())
             .map(|l| {
-                let d = self.density_on(levels - 1 - l, set);
-                let perimeter = 2.0 * (tree.zs[l].len() as f64 * wc + tree.xs[l].len() as f64 * hc);
-                d.vertices(self.valid, perimeter, valid_share)
+                let d = self.density_on(built.len() - 1 - l, set);
+                let perimeter: u32 = built[l].iter().map(|&(xs, zs)| 2 * (xs.1 - xs.0 + zs.1 - zs.0)).sum();
+                d.vertices(self.valid, f64::from(perimeter), valid_share)
             })
             .sum();
         vertices / chunks as f64
+    }
+
+    /// Per level of `tree`, how many chunks a build makes ([`Self::built`]).
+    pub fn chunks_built(&mut self, tree: &ChunkTree) -> Vec<usize> {
+        self.built(tree).iter().map(Vec::len).collect()
+    }
+
+    /// Per level of `tree`, the footprints of the chunks a build makes: all
+    /// but those below a chunk that ends where it is, flat to within
+    /// `max_error_m` (its relief, highest less lowest valid height, is
+    /// within it, so any mesh of its samples is, and the build stops there:
+    /// Kattegat's sea at 0 m, or N43E007's, 73 % of that tile). Counting
+    /// them as built put N43E007's 150-cell tree at 1 m within 8 000
+    /// vertices per chunk, where the build made 81 of its 213 chunks at 12 700
+    /// on average. Chunks with no valid sample stay counted, as the
+    /// densities count valid samples only.
+    fn built(&mut self, tree: &ChunkTree) -> Vec<Vec<(Span, Span)>> {
+        let mut built = vec![Vec::new(); tree.delta_m.len()];
+        let mut level = tree.roots();
+        while !level.is_empty() {
+            let mut next = Vec::new();
+            for k in level {
+                let fp = tree.footprint(k);
+                built[k.level as usize].push(fp);
+                let flat = self.extent(fp).is_some_and(|(lo, hi)| f64::from(hi) - f64::from(lo) <= self.max_error_m);
+                if !flat {
+                    next.extend(tree.children(k));
+                }
+            }
+            level = next;
+        }
+        built
+    }
+
+    /// The lowest and highest valid height in a footprint, measured once:
+    /// the first time for every chunk of the narrowest candidate tree's
+    /// deepest level and, from those, for every chunk above it (the
+    /// candidates' trees are its top levels, whose footprints their
+    /// children's tile); any other footprint on its own.
+    fn extent(&mut self, fp: (Span, Span)) -> Option<(f32, f32)> {
+        if self.extents.is_empty() {
+            let narrowest = *leaf_candidates(self.grid, self.max_error_m).last().expect("one candidate");
+            let full = ChunkTree::plan(self.grid.width, self.grid.height, self.max_error_m, narrowest, 0);
+            for l in (0..full.delta_m.len()).rev() {
+                for (y, &zs) in full.zs[l].iter().enumerate() {
+                    for (x, &xs) in full.xs[l].iter().enumerate() {
+                        let kids = full.children(ChunkKey { level: l as u32, x: x as u32, y: y as u32 });
+                        let e = match kids.is_empty() {
+                            true => extent_in(self.grid, xs, zs),
+                            false => kids.iter().map(|&c| self.extents[&full.footprint(c)]).fold(None, merge_extent),
+                        };
+                        self.extents.insert((xs, zs), e);
+                    }
+                }
+            }
+        }
+        if let Some(&e) = self.extents.get(&fp) {
+            return e;
+        }
+        let e = extent_in(self.grid, fp.0, fp.1);
+        self.extents.insert(fp, e);
+        e
     }
 
     /// [`valid_in`], counted once per footprint.
@@ -798,6 +865,32 @@ pub const SURELY_TOO_DENSE: f64 = 1.2;
 /// How near [`CHUNK_VERTICES`] a tree's estimate must be to be measured
 /// again on more windows.
 const CLOSE_CALL: f64 = 0.15;
+
+/// The lowest and highest valid height in a footprint (`None`: none valid).
+fn extent_in(grid: &Grid, xs: Span, zs: Span) -> Option<(f32, f32)> {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for i in zs.0 as usize..=zs.1 as usize {
+        let row = i * grid.width;
+        for &h in &grid.heights[row + xs.0 as usize..=row + xs.1 as usize] {
+            // NaN (nodata) fails both.
+            if h < lo {
+                lo = h;
+            }
+            if h > hi {
+                hi = h;
+            }
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// Two extents as one.
+fn merge_extent(a: Option<(f32, f32)>, b: Option<(f32, f32)>) -> Option<(f32, f32)> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some((a.0.min(b.0), a.1.max(b.1))),
+        (a, b) => a.or(b),
+    }
+}
 
 /// Valid samples in a footprint.
 fn valid_in(grid: &Grid, xs: Span, zs: Span) -> usize {
