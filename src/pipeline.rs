@@ -759,11 +759,11 @@ impl<'g> Estimate<'g> {
         built
     }
 
-    /// The lowest and highest valid height in a footprint, measured once:
-    /// the first time for every chunk of the narrowest candidate tree's
-    /// deepest level and, from those, for every chunk above it (the
-    /// candidates' trees are its top levels, whose footprints their
-    /// children's tile); any other footprint on its own.
+    /// The lowest and highest valid height in a footprint, measured once.
+    /// The first call measures every chunk of the narrowest candidate
+    /// tree's deepest level, and each chunk above from its children (which
+    /// tile it): every candidate's tree is that tree's top levels. Any other
+    /// footprint is measured on its own.
     fn extent(&mut self, fp: (Span, Span)) -> Option<(f32, f32)> {
         if self.extents.is_empty() {
             let narrowest = *leaf_candidates(self.grid, self.max_error_m).last().expect("one candidate");
