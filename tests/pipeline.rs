@@ -9,8 +9,10 @@ use std::process::Command;
 
 use serde_json::Value;
 use terrachunk::config::{Config, Thin, VertexCache};
+use terrachunk::mesh::decimate::Grid;
 use terrachunk::output::tileset::extras_schemas;
-use terrachunk::pipeline::build;
+use terrachunk::pipeline::{CHUNK_VERTICES, Estimate, build};
+use terrachunk::quadtree::ChunkTree;
 use terrachunk::verify::verify;
 
 use crate::common::{
@@ -327,9 +329,6 @@ fn the_leaf_width_is_the_shallowest_tree_within_8000_vertices_per_chunk() {
 /// the one chosen.
 #[test]
 fn a_leaf_width_is_judged_with_the_refine_levels_it_is_built_with() {
-    use terrachunk::mesh::decimate::Grid;
-    use terrachunk::pipeline::{CHUNK_VERTICES, Estimate};
-    use terrachunk::quadtree::ChunkTree;
     let hf = terrachunk::dem::load(&[fixture("france_italy_etopo2.tif")], &Default::default()).unwrap();
     let grid = Grid::new(hf.width, hf.height, &hf.heights, None);
     let mut estimate = Estimate::new(&grid, 0.1, 65_535);
@@ -350,9 +349,6 @@ fn a_leaf_width_is_judged_with_the_refine_levels_it_is_built_with() {
 /// 12 700 vertices per chunk where the estimate said under 8 000).
 #[test]
 fn the_estimate_counts_the_chunks_a_build_makes_over_a_flat_sea() {
-    use terrachunk::mesh::decimate::Grid;
-    use terrachunk::pipeline::Estimate;
-    use terrachunk::quadtree::ChunkTree;
     let tmp = tempfile::tempdir().unwrap();
     // West of column 160 a sea at exactly 0 m, east of it rough hills.
     let height = |i: usize, j: usize| match j < 160 {
