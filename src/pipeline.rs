@@ -389,8 +389,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
             // Leaves wider than a dense leaf may be: refine levels keep their
             // footprint and cannot help, narrower leaves do.
             Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > dense => {
-                leaf_cells = estimate.leaf_cells(dense);
-                refine = estimate.refine_levels(leaf_cells);
+                (leaf_cells, refine) = estimate.leaf_cells(dense);
                 estimated = refine;
             }
             // A chosen wide leaf that is too dense at max_error_m: the last
@@ -440,11 +439,10 @@ fn plan_tree<'g>(
         by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
     });
     let mut estimate = Estimate::new(grid, cfg.max_error_m, cfg.max_chunk_vertices as usize);
-    let leaf_cells = match cfg.leaf_cells {
-        Some(c) => c,
+    let (leaf_cells, refine) = match cfg.leaf_cells {
+        Some(c) => (c, estimate.refine_levels(c)),
         None => estimate.leaf_cells(widest_leaf),
     };
-    let refine = estimate.refine_levels(leaf_cells);
     Planned { estimate, leaf_cells, refine }
 }
 
@@ -670,8 +668,10 @@ impl<'g> Estimate<'g> {
     /// up to 8 × 8 windows of 32² cells, which decides. Leaves wider
     /// than [`dense_leaf_cells`] are chosen only up to `widest` cells and
     /// where the densest window says they hold under half of
-    /// `max_chunk_vertices` (see [`build_into`]).
-    pub fn leaf_cells(&mut self, widest: u32) -> u32 {
+    /// `max_chunk_vertices` (see [`build_into`]). Returns the width and
+    /// the refine levels it was judged with, the ones to build it with
+    /// first.
+    pub fn leaf_cells(&mut self, widest: u32) -> (u32, u32) {
         let grid = self.grid;
         let candidates = leaf_candidates(grid, self.max_error_m);
         let deepest = *candidates.last().expect("one candidate");
@@ -699,10 +699,10 @@ impl<'g> Estimate<'g> {
                 estimate = self.vertices_per_chunk(&tree, 1);
             }
             if estimate <= CHUNK_VERTICES {
-                return c;
+                return (c, refine);
             }
         }
-        deepest
+        (deepest, self.refine_levels(deepest))
     }
 
     /// The estimated surface vertices per chunk of `tree` (a plan over this
@@ -869,9 +869,8 @@ const CLOSE_CALL: f64 = 0.15;
 /// The lowest and highest valid height in a footprint (`None`: none valid).
 fn extent_in(grid: &Grid, xs: Span, zs: Span) -> Option<(f32, f32)> {
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-    for i in zs.0 as usize..=zs.1 as usize {
-        let row = i * grid.width;
-        for &h in &grid.heights[row + xs.0 as usize..=row + xs.1 as usize] {
+    for row in footprint_rows(grid, xs, zs) {
+        for &h in row {
             // NaN (nodata) fails both.
             if h < lo {
                 lo = h;
@@ -894,12 +893,15 @@ fn merge_extent(a: Option<(f32, f32)>, b: Option<(f32, f32)>) -> Option<(f32, f3
 
 /// Valid samples in a footprint.
 fn valid_in(grid: &Grid, xs: Span, zs: Span) -> usize {
-    (zs.0 as usize..=zs.1 as usize)
-        .map(|i| {
-            let row = i * grid.width;
-            grid.heights[row + xs.0 as usize..=row + xs.1 as usize].iter().filter(|h| !h.is_nan()).count()
-        })
-        .sum()
+    footprint_rows(grid, xs, zs).map(|row| row.iter().filter(|h| !h.is_nan()).count()).sum()
+}
+
+/// The heights of a footprint, row by row.
+fn footprint_rows<'a>(grid: &'a Grid, xs: Span, zs: Span) -> impl Iterator<Item = &'a [f32]> {
+    (zs.0 as usize..=zs.1 as usize).map(move |i| {
+        let row = i * grid.width;
+        &grid.heights[row + xs.0 as usize..=row + xs.1 as usize]
+    })
 }
 
 /// What [`Estimate`] measures on its windows at one δ.

@@ -332,8 +332,7 @@ fn a_leaf_width_is_judged_with_the_refine_levels_it_is_built_with() {
     let hf = terrachunk::dem::load(&[fixture("france_italy_etopo2.tif")], &Default::default()).unwrap();
     let grid = Grid::new(hf.width, hf.height, &hf.heights, None);
     let mut estimate = Estimate::new(&grid, 0.1, 65_535);
-    let leaf = estimate.leaf_cells(u32::MAX);
-    let refine = estimate.refine_levels(leaf);
+    let (leaf, refine) = estimate.leaf_cells(u32::MAX);
     assert_eq!(leaf, 64, "leaf width");
     assert!(refine > 0, "the 64-cell tree needs refine levels here");
     let tree = |refine| ChunkTree::plan(hf.width, hf.height, 0.1, leaf, refine);
