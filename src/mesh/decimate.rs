@@ -377,6 +377,7 @@ fn insert_samples(
 fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
     let voids = queue.grid.grid.filled.is_some();
     let (mut star, mut changed, mut options, mut probes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut found = Vec::new();
     let mut visit = vec![true; tin.pts.len()];
     let mut next = vec![false; tin.pts.len()];
     for _ in 0..4 {
@@ -419,9 +420,17 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
             options.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             let (i, j) = (p.z as u32, p.x as u32);
             lines.unmark_vertex(i, j);
+            // Each new triangle is scanned as the queue would scan it once
+            // the collapse is made (same corners in the same order, same
+            // lines), so an accepted collapse records those scans rather
+            // than scanning its triangles again.
             let chosen = options.iter().map(|&(_, k)| star[k]).find(|&e| {
-                fan(tin, &star, tin.ends(e).1)
-                    .all(|tri| fits(queue.grid, queue.clip, lines, &queue.target, &tri, voids))
+                found.clear();
+                kept_fan(tin, &star, tin.ends(e).1).all(|(t, tri)| {
+                    fits(queue.grid, queue.clip, lines, &queue.target, &tri, voids)
+                        .map(|s| found.push((t, s)))
+                        .is_some()
+                })
             });
             match chosen {
                 Some(e) => {
@@ -430,7 +439,13 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
                     }
                     tin.collapse(e, &mut changed);
                     for &t in &changed {
-                        queue.push(tin, lines, t);
+                        match found.iter().find(|f| f.0 == t) {
+                            Some(&(_, s)) => {
+                                debug_assert_eq!(s, scan_for_queue(queue.grid, queue.clip, lines, &tin.corners(t)));
+                                queue.record(t, tin.version(t), s, queue.target.over(&tin.corners(t)));
+                            }
+                            None => queue.push(tin, lines, t),
+                        }
                     }
                     removed += 1;
                 }
@@ -454,6 +469,17 @@ fn fan<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = [V; 3]
         .map(move |(w, x)| [u, w, x].map(|k| tin.pts[k as usize]))
 }
 
+/// [`fan`] as the TIN will hold it after the collapse: each triangle's id,
+/// and its corners in the TIN's order (u where v was).
+fn kept_fan<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = (u32, [V; 3])> + 'a {
+    star.iter().filter(move |&&g| tin.ends(g).1 != u && tin.apex(g) != u).map(move |&g| {
+        let mut corners = [u, tin.ends(g).1, tin.apex(g)];
+        // Half-edge g leaves corner g % 3 of its triangle.
+        corners.rotate_right((g % 3) as usize);
+        (g / 3, corners.map(|k| tin.pts[k as usize]))
+    })
+}
+
 /// Counter-clockwise by more than rounding.
 fn counter_clockwise([a, b, c]: &[V; 3]) -> bool {
     robust::orient2d(Coord { x: a.x, y: a.z }, Coord { x: b.x, y: b.z }, Coord { x: c.x, y: c.z }) > 1e-6
@@ -473,25 +499,25 @@ fn probe_off(fan: impl Iterator<Item = [V; 3]>, (x, z, h): (f64, f64, f64), targ
     0.0
 }
 
-/// Whether every sample in `tri` that is not a vertex lies within its
-/// target, and the triangle covers data (or, on a DEM without voids, lies
-/// between samples): the scan stops at the first sample beyond.
-fn fits(grid: &Window, clip: (Span, Span), lines: &Lines, target: &Targets, tri: &[V; 3], voids: bool) -> bool {
-    let target = target.over(tri);
-    let mut beyond = false;
-    let coverage = scan_triangle(grid, clip, tri, |i, j, err| {
-        if err > target && !lines.is_vertex(i, j) {
-            beyond = true;
-            return f64::INFINITY;
-        }
-        target
-    });
-    let covers = match coverage {
+/// The queue's scan of `tri` ([`scan_for_queue`]) if every sample in it
+/// that is not a vertex lies within its target and the triangle covers
+/// data (or, on a DEM without voids, lies between samples); `None` if not.
+/// The scan stops at the first sample beyond.
+fn fits(
+    grid: &Window,
+    clip: (Span, Span),
+    lines: &Lines,
+    target: &Targets,
+    tri: &[V; 3],
+    voids: bool,
+) -> Option<TriangleScan> {
+    let found = scan_within(grid, clip, lines, tri, target.over(tri))?;
+    let covers = match found.coverage {
         Some(Coverage::Valid) => true,
         Some(Coverage::NoSample) => !voids,
         _ => false,
     };
-    covers && !beyond
+    covers.then_some(found)
 }
 
 /// Barycentric weights of (x, z) in triangle (a, b, c); `None` if it has
@@ -1366,10 +1392,22 @@ impl Queue<'_> {
 /// Scans triangle `tri` for step 4's queue: its largest error over samples
 /// that are not vertices, and its worst sample step 4 may insert.
 fn scan_for_queue(grid: &Window, clip: (Span, Span), lines: &Lines, tri: &[V; 3]) -> TriangleScan {
+    scan_within(grid, clip, lines, tri, f64::INFINITY).expect("nothing is beyond an infinite limit")
+}
+
+/// [`scan_for_queue`], or `None` as soon as a sample that is not a vertex
+/// lies more than `limit` off. Every such sample is visited: while the
+/// worst is within `limit`, the floor (the worst's error) is too.
+fn scan_within(grid: &Window, clip: (Span, Span), lines: &Lines, tri: &[V; 3], limit: f64) -> Option<TriangleScan> {
     let mut worst: Option<(f64, u32, u32)> = None;
     let mut max_err = 0.0;
+    let mut beyond = false;
     let coverage = scan_triangle(grid, clip, tri, |i, j, err| {
         if err > max_err && !lines.is_vertex(i, j) {
+            if err > limit {
+                beyond = true;
+                return f64::INFINITY;
+            }
             max_err = err;
         }
         if worst.is_none_or(|w| err > w.0) && !lines.row_is_line(i) && !lines.col_is_line(j) && !lines.is_vertex(i, j) {
@@ -1379,7 +1417,7 @@ fn scan_for_queue(grid: &Window, clip: (Span, Span), lines: &Lines, tri: &[V; 3]
         // `max_err`, never below it) changes neither.
         worst.map_or(f64::NEG_INFINITY, |w| w.0)
     });
-    TriangleScan { max_err, coverage, worst }
+    (!beyond).then_some(TriangleScan { max_err, coverage, worst })
 }
 
 /// Calls `visit(i, j, |h − plane|)` for every valid sample in the closed
@@ -1438,17 +1476,18 @@ fn scan_triangle(
             continue;
         }
         seen = true;
-        for (j, &h) in (j0..=j1).zip(&row[j0 as usize - grid.x0..=j1 as usize - grid.x0]) {
-            let err = (f64::from(h) - (base + gx * (j as f64 - a.0))).abs();
-            // A valid sample is visited at least until the floor is finite,
-            // so `any` is set by then.
-            if err > floor {
-                any = true;
-                floor = visit(i as u32, j as u32, err);
-                if floor == f64::INFINITY {
-                    return Some(Coverage::Valid);
-                }
+        let samples = &row[j0 as usize - grid.x0..=j1 as usize - grid.x0];
+        let mut k = 0;
+        // A valid sample is visited at least until the floor is finite, so
+        // `any` is set by then.
+        while let Some((d, err)) = first_over(&samples[k..], (j0 + k as i64) as f64, a.0, base, gx, floor) {
+            k += d;
+            any = true;
+            floor = visit(i as u32, (j0 + k as i64) as u32, err);
+            if floor == f64::INFINITY {
+                return Some(Coverage::Valid);
             }
+            k += 1;
         }
     }
     Some(match (seen, any) {
@@ -1456,6 +1495,24 @@ fn scan_triangle(
         (true, false) => Coverage::NodataOnly,
         (false, _) => Coverage::NoSample,
     })
+}
+
+/// The first of a row's `samples` more than `floor` off the plane
+/// `base + gx·(x − ax)`, the first at column `x`, and its error: the scan's
+/// inner loop, kept apart from what `visit` keeps so that its few values
+/// stay in registers. The column counts up by one as an f64, exactly (a
+/// whole number far below 2⁵³): each error is the one `j as f64` gives.
+#[inline]
+fn first_over(samples: &[f32], x: f64, ax: f64, base: f64, gx: f64, floor: f64) -> Option<(usize, f64)> {
+    let mut x = x;
+    for (k, &h) in samples.iter().enumerate() {
+        let err = (f64::from(h) - (base + gx * (x - ax))).abs();
+        if err > floor {
+            return Some((k, err));
+        }
+        x += 1.0;
+    }
+    None
 }
 
 /// `x.ceil() as i64` without the libm call (x86-64 before SSE4.1 has no
@@ -1739,6 +1796,31 @@ mod tests {
             p
         };
         assert_eq!(lines(&plain), lines(&thinned));
+
+        // The scans a thinned mesh keeps, from which its max error is read
+        // and its children start, are what scanning its triangles finds:
+        // thinning records the scans it made while trying each collapse
+        // instead of scanning the new triangles again.
+        let corner: std::collections::HashSet<(u64, u64)> =
+            thinned.vertices.iter().map(|v| (v.x.to_bits(), v.z.to_bits())).collect();
+        let mut kept_scans = 0;
+        for (t, scan) in thinned.triangles.iter().zip(&thinned.scans) {
+            let Some(scan) = scan else { continue };
+            let [p, q, r] = t.map(|k| thinned.vertices[k as usize]);
+            let mut worst: f64 = 0.0;
+            for i in p.z.min(q.z).min(r.z) as usize..=p.z.max(q.z).max(r.z) as usize {
+                for j in p.x.min(q.x).min(r.x) as usize..=p.x.max(q.x).max(r.x) as usize {
+                    let (x, z) = (j as f64, i as f64);
+                    let (outside, plane) = barycentric(&p, &q, &r, x, z);
+                    if outside <= 1e-9 && !corner.contains(&(x.to_bits(), z.to_bits())) {
+                        worst = worst.max((f64::from(heights[i * w + j]) - plane).abs());
+                    }
+                }
+            }
+            assert!((worst - scan.max_err).abs() < 1e-9, "kept scan {} against {worst} by brute force", scan.max_err);
+            kept_scans += 1;
+        }
+        assert!(kept_scans * 10 > thinned.triangles.len() * 9, "{kept_scans} of {}", thinned.triangles.len());
 
         let child = ChunkKey { level: 1, x: 1, y: 0 };
         let quarter = ((64, 128), (0, 48));
