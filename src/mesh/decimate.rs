@@ -463,21 +463,24 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
 /// The triangles a collapse of v onto its neighbour u leaves: each of v's
 /// triangles (`star`, its half-edges out) that does not hold u, with u for v.
 fn fan<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = [V; 3]> + 'a {
-    star.iter()
-        .map(|&g| (tin.ends(g).1, tin.apex(g)))
-        .filter(move |&(w, x)| w != u && x != u)
-        .map(move |(w, x)| [u, w, x].map(|k| tin.pts[k as usize]))
+    fan_corners(tin, star, u).map(move |(_, corners)| corners.map(|k| tin.pts[k as usize]))
 }
 
 /// [`fan`] as the TIN will hold it after the collapse: each triangle's id,
 /// and its corners in the TIN's order (u where v was).
 fn kept_fan<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = (u32, [V; 3])> + 'a {
-    star.iter().filter(move |&&g| tin.ends(g).1 != u && tin.apex(g) != u).map(move |&g| {
-        let mut corners = [u, tin.ends(g).1, tin.apex(g)];
+    fan_corners(tin, star, u).map(move |(g, mut corners)| {
         // Half-edge g leaves corner g % 3 of its triangle.
         corners.rotate_right((g % 3) as usize);
         (g / 3, corners.map(|k| tin.pts[k as usize]))
     })
+}
+
+/// Each half-edge g out of v whose triangle does not hold u, and that
+/// triangle's corners after the collapse, from u: `[u, w, x]` for g from v
+/// to w and its apex x.
+fn fan_corners<'a>(tin: &'a Tin, star: &'a [u32], u: u32) -> impl Iterator<Item = (u32, [u32; 3])> + 'a {
+    star.iter().map(move |&g| (g, [u, tin.ends(g).1, tin.apex(g)])).filter(move |&(_, [_, w, x])| w != u && x != u)
 }
 
 /// Counter-clockwise by more than rounding.
