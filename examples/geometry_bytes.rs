@@ -24,6 +24,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
+use terrachunk::output::compress::{decode_stream, encode_vertex_stream};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -145,20 +146,8 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
             },
             Some(m) => {
                 let data = &bin[num(&m["byteOffset"])..][..num(&m["byteLength"])];
-                let (count, stride) = (num(&m["count"]), num(&m["byteStride"]));
-                let bytes = match m["mode"].as_str() {
-                    Some("TRIANGLES") if stride == 4 => meshopt::decode_index_buffer::<u32>(data, count)
-                        .map_err(|e| format!("{e:?}"))?
-                        .into_iter()
-                        .flat_map(u32::to_le_bytes)
-                        .collect(),
-                    Some("TRIANGLES") => meshopt::decode_index_buffer::<u16>(data, count)
-                        .map_err(|e| format!("{e:?}"))?
-                        .into_iter()
-                        .flat_map(u16::to_le_bytes)
-                        .collect(),
-                    _ => decode(data, count, stride)?,
-                };
+                let stride = num(&m["byteStride"]);
+                let bytes = decode_stream(m, data)?;
                 View { bytes, stride, version: Some(data[0] & 0x0f) }
             }
         });
@@ -244,7 +233,7 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
                 None => column.len(),
                 Some(version) => {
                     let level = level.unwrap_or(if version == 0 { 2 } else { 3 });
-                    encode(&column, size, level, i32::from(version))?.len()
+                    encode_vertex_stream(&column, size, level, i32::from(version))?.len()
                 }
             };
             let what = if what == "POSITION" { "positions".to_string() } else { what.to_lowercase() };
@@ -252,47 +241,4 @@ fn measure(file: &[u8], level: Option<i32>, sum: &mut Sizes) -> Result<(), Strin
         }
     }
     Ok(())
-}
-
-fn decode(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, String> {
-    fn dec<const N: usize>(data: &[u8], count: usize) -> Result<Vec<u8>, String> {
-        let v = meshopt::decode_vertex_buffer::<Element<N>>(data, count).map_err(|e| format!("{e:?}"))?;
-        Ok(v.iter().flat_map(|e| e.0).collect())
-    }
-    match stride {
-        4 => dec::<4>(data, count),
-        8 => dec::<8>(data, count),
-        12 => dec::<12>(data, count),
-        16 => dec::<16>(data, count),
-        20 => dec::<20>(data, count),
-        24 => dec::<24>(data, count),
-        28 => dec::<28>(data, count),
-        32 => dec::<32>(data, count),
-        _ => Err(format!("stride {stride}")),
-    }
-}
-
-fn encode(raw: &[u8], size: usize, level: i32, version: i32) -> Result<Vec<u8>, String> {
-    fn enc<const N: usize>(raw: &[u8], level: i32, version: i32) -> Result<Vec<u8>, String> {
-        let v: Vec<Element<N>> = raw.chunks_exact(N).map(|c| Element(c.try_into().expect("N bytes"))).collect();
-        meshopt::encode_vertex_buffer_level(&v, level, Some(version)).map_err(|e| format!("{e:?}"))
-    }
-    match size {
-        4 => enc::<4>(raw, level, version),
-        8 => enc::<8>(raw, level, version),
-        12 => enc::<12>(raw, level, version),
-        16 => enc::<16>(raw, level, version),
-        _ => Err(format!("column of {size} bytes")),
-    }
-}
-
-/// One element: `[u8; N]` has no `Default` for every `N`.
-#[derive(Clone, Copy)]
-#[repr(transparent)]
-struct Element<const N: usize>([u8; N]);
-
-impl<const N: usize> Default for Element<N> {
-    fn default() -> Self {
-        Element([0; N])
-    }
 }

@@ -914,35 +914,43 @@ const MAX_STRIDE: usize = 32;
 
 /// meshoptimizer's vertex codec in the version and at the level `codec` uses.
 fn encode_vertices(raw: &[u8], stride: usize, codec: Meshopt) -> Vec<u8> {
-    fn enc<const N: usize>(raw: &[u8], codec: Meshopt) -> Vec<u8> {
-        let v: Vec<[u8; N]> = raw.chunks_exact(N).map(|c| c.try_into().expect("N bytes")).collect();
-        meshopt::encode_vertex_buffer_level(&v, codec.vertex_level(), Some(codec.vertex_version()))
-            .expect("vertex encoding")
+    encode_vertex_stream(raw, stride, codec.vertex_level(), codec.vertex_version())
+        .unwrap_or_else(|e| unreachable!("the writer's vertex strides are multiples of 4 up to {MAX_STRIDE}: {e}"))
+}
+
+/// meshoptimizer's vertex codec, `version` 0 or 1 at `level` 0..=3, over
+/// elements of `stride` bytes (a multiple of 4 up to 32).
+pub fn encode_vertex_stream(raw: &[u8], stride: usize, level: i32, version: i32) -> Result<Vec<u8>, String> {
+    fn enc<const N: usize>(raw: &[u8], level: i32, version: i32) -> Result<Vec<u8>, String> {
+        let v: Vec<Element<N>> = raw.chunks_exact(N).map(|c| Element(c.try_into().expect("N bytes"))).collect();
+        meshopt::encode_vertex_buffer_level(&v, level, Some(version)).map_err(|e| format!("{e:?}"))
     }
     match stride {
-        4 => enc::<4>(raw, codec),
-        8 => enc::<8>(raw, codec),
-        12 => enc::<12>(raw, codec),
-        16 => enc::<16>(raw, codec),
-        20 => enc::<20>(raw, codec),
-        24 => enc::<24>(raw, codec),
-        28 => enc::<28>(raw, codec),
-        MAX_STRIDE => enc::<MAX_STRIDE>(raw, codec),
-        _ => unreachable!("vertex strides are multiples of 4 bytes up to {MAX_STRIDE}"),
+        4 => enc::<4>(raw, level, version),
+        8 => enc::<8>(raw, level, version),
+        12 => enc::<12>(raw, level, version),
+        16 => enc::<16>(raw, level, version),
+        20 => enc::<20>(raw, level, version),
+        24 => enc::<24>(raw, level, version),
+        28 => enc::<28>(raw, level, version),
+        MAX_STRIDE => enc::<MAX_STRIDE>(raw, level, version),
+        _ => Err(format!("stride {stride} is not a multiple of 4 up to {MAX_STRIDE}")),
+    }
+}
+
+/// One element: `[u8; N]` has no `Default` for every `N`.
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+struct Element<const N: usize>([u8; N]);
+
+impl<const N: usize> Default for Element<N> {
+    fn default() -> Self {
+        Element([0; N])
     }
 }
 
 /// meshoptimizer's vertex decoder for `count` elements of `stride` bytes.
 fn decode_vertices(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, String> {
-    /// One element: `[u8; N]` has no `Default` for every `N`.
-    #[derive(Clone, Copy)]
-    #[repr(transparent)]
-    struct Element<const N: usize>([u8; N]);
-    impl<const N: usize> Default for Element<N> {
-        fn default() -> Self {
-            Element([0; N])
-        }
-    }
     fn dec<const N: usize>(data: &[u8], count: usize) -> Result<Vec<u8>, String> {
         let v = meshopt::decode_vertex_buffer::<Element<N>>(data, count).map_err(|e| format!("{e:?}"))?;
         Ok(v.iter().flat_map(|e| e.0).collect())
@@ -957,6 +965,33 @@ fn decode_vertices(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, 
         28 => dec::<28>(data, count),
         MAX_STRIDE => dec::<MAX_STRIDE>(data, count),
         _ => Err(format!("stride {stride} is not a multiple of 4 up to {MAX_STRIDE}")),
+    }
+}
+
+/// A meshopt-compressed buffer view's bytes, decoded by the codec its
+/// `mode` names but not yet by its `filter`: `ext` is the view's
+/// `EXT_meshopt_compression` or `KHR_meshopt_compression` object (`count`,
+/// `byteStride`, `mode`), `data` its compressed bytes. Indices come out as
+/// little-endian u16 or u32, as the stride says.
+pub fn decode_stream(ext: &Value, data: &[u8]) -> Result<Vec<u8>, String> {
+    let num = |x: &Value| x.as_u64().map_or(0, |n| n as usize);
+    let (count, stride) = (num(&ext["count"]), num(&ext["byteStride"]));
+    let bad = |e: meshopt::Error| format!("meshopt cannot decode it: {e:?}");
+    match (ext["mode"].as_str(), stride) {
+        (Some("ATTRIBUTES"), _) => {
+            decode_vertices(data, count, stride).map_err(|e| format!("meshopt cannot decode it: {e}"))
+        }
+        (Some("TRIANGLES"), 2) => Ok(meshopt::decode_index_buffer::<u16>(data, count)
+            .map_err(bad)?
+            .into_iter()
+            .flat_map(u16::to_le_bytes)
+            .collect()),
+        (Some("TRIANGLES"), 4) => Ok(meshopt::decode_index_buffer::<u32>(data, count)
+            .map_err(bad)?
+            .into_iter()
+            .flat_map(u32::to_le_bytes)
+            .collect()),
+        (mode, stride) => Err(format!("meshopt mode {mode:?} with stride {stride}")),
     }
 }
 
@@ -1161,26 +1196,9 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
                 if !["NONE", "OCTAHEDRAL", "EXPONENTIAL"].contains(&filter) {
                     return Err(format!("bufferView {v}: meshopt filter {filter} is not supported"));
                 }
-                let (count, stride) = (num(&m["count"]).unwrap_or(0), num(&m["byteStride"]).unwrap_or(0));
+                let stride = num(&m["byteStride"]).unwrap_or(0);
                 let data = slice(num(&m["byteOffset"]).unwrap_or(0), num(&m["byteLength"]).unwrap_or(0))?;
-                let bad = |e: meshopt::Error| format!("bufferView {v}: meshopt cannot decode it: {e:?}");
-                let decoded: Vec<u8> = match (m["mode"].as_str(), stride) {
-                    (Some("ATTRIBUTES"), _) => decode_vertices(data, count, stride)
-                        .map_err(|e| format!("bufferView {v}: meshopt cannot decode it: {e}"))?,
-                    (Some("TRIANGLES"), 2) => meshopt::decode_index_buffer::<u16>(data, count)
-                        .map_err(bad)?
-                        .into_iter()
-                        .flat_map(u16::to_le_bytes)
-                        .collect(),
-                    (Some("TRIANGLES"), 4) => meshopt::decode_index_buffer::<u32>(data, count)
-                        .map_err(bad)?
-                        .into_iter()
-                        .flat_map(u32::to_le_bytes)
-                        .collect(),
-                    (mode, stride) => {
-                        return Err(format!("bufferView {v}: meshopt mode {mode:?} with stride {stride}"));
-                    }
-                };
+                let decoded = decode_stream(m, data).map_err(|e| format!("bufferView {v}: {e}"))?;
                 match (filter, stride) {
                     ("OCTAHEDRAL", 4) => {
                         let mut oct: Vec<[i8; 4]> =
@@ -1291,6 +1309,23 @@ fn near_samples(grid: &Grid, tri: &[MeshVertex; 3], mut visit: impl FnMut(usize,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The vertex codec's two ends agree at every stride the writer uses
+    /// and in both versions, and a view the reader cannot decode says why.
+    #[test]
+    fn a_vertex_stream_decodes_to_what_was_encoded() {
+        for stride in (4..=MAX_STRIDE).step_by(4) {
+            let raw: Vec<u8> = (0..stride * 37).map(|k| (k * 7 % 251) as u8).collect();
+            for version in [0, 1] {
+                let data = encode_vertex_stream(&raw, stride, 3, version).expect("a stride the writer uses");
+                let ext = json!({"count": 37, "byteStride": stride, "mode": "ATTRIBUTES"});
+                assert_eq!(decode_stream(&ext, &data).expect("decodes"), raw, "stride {stride}, version {version}");
+            }
+        }
+        assert!(encode_vertex_stream(&[0; 6], 6, 3, 1).unwrap_err().contains("stride 6"));
+        let odd = json!({"count": 3, "byteStride": 1, "mode": "TRIANGLES"});
+        assert_eq!(decode_stream(&odd, &[]).unwrap_err(), "meshopt mode Some(\"TRIANGLES\") with stride 1");
+    }
 
     /// `cut_error` with an acceptable error: exact wherever the chunk is
     /// over it, at most it where the chunk is within it, so the caller's
