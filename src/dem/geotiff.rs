@@ -77,41 +77,10 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         None => None,
     };
 
-    let chunk_type = dec.get_chunk_type();
-    let (cw, ch) = dec.chunk_dimensions();
-    let (cw, ch) = (cw as usize, ch as usize);
-    if cw == 0 || ch == 0 {
-        return Err(corrupt(path, format!("chunks of {cw} × {ch} samples")));
-    }
-    // While decoding, the buffer limit is one chunk of at most 8-byte samples.
-    let chunk_bytes = cw.min(width).saturating_mul(ch.min(height)).saturating_mul(8);
-    let mut limits = tag_limits(file_len);
-    limits.decoding_buffer_size = chunk_bytes.saturating_add(1 << 16);
-    dec = dec.with_limits(limits);
-
     let mut heights = vec![f32::NAN; n];
-    let across = match chunk_type {
-        ChunkType::Strip => 1,
-        ChunkType::Tile => width.div_ceil(cw),
-    };
-    let count = match chunk_type {
-        ChunkType::Strip => dec.strip_count().map_err(err)?,
-        ChunkType::Tile => dec.tile_count().map_err(err)?,
-    };
-    for idx in 0..count {
-        let (x0, y0) = match chunk_type {
-            ChunkType::Strip => (0, idx as usize * ch),
-            ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
-        };
-        if x0 >= width || y0 >= height {
-            // Extra planes or stray chunks beyond the image: nothing to place.
-            continue;
-        }
-        let chunk = dec.read_chunk(idx).map_err(err)?;
-        let dw = cw.min(width - x0);
-        let dh = ch.min(height - y0);
-        place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)?;
-    }
+    let dec = read_chunks(path, dec, file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
+        place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
+    })?;
 
     let mut hf = Heightfield {
         width,
@@ -121,7 +90,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
         source: file_name(path),
     };
-    dec = dec.with_limits(tag_limits(file_len));
+    let mut dec = dec.with_limits(tag_limits(file_len));
     georeference(path, &mut dec, &mut hf)?;
     Ok(hf)
 }
@@ -135,6 +104,50 @@ fn tag_limits(file_len: u64) -> Limits {
     limits.decoding_buffer_size = values.saturating_mul(std::mem::size_of::<tiff::decoder::ifd::Value>());
     limits.intermediate_buffer_size = usize::try_from(file_len).unwrap_or(usize::MAX);
     limits
+}
+
+/// Decodes every strip or tile that lies on the image, in file order, and
+/// hands each to `take` with its first pixel and its size cropped to the
+/// image (`[x0, y0, width, height]`; the decoder crops edge tiles and the
+/// last strip alike). Extra planes or stray chunks beyond the image are
+/// skipped. While decoding, the buffer limit is one chunk of at most
+/// `bytes_per_pixel`; `unit` names a pixel in the error for empty chunks.
+fn read_chunks(
+    path: &Path,
+    dec: Decoder<BufReader<File>>,
+    file_len: u64,
+    (width, height): (usize, usize),
+    bytes_per_pixel: usize,
+    unit: &str,
+    mut take: impl FnMut(DecodingResult, [usize; 4]) -> Result<(), DemError>,
+) -> Result<Decoder<BufReader<File>>, DemError> {
+    let err = |e: TiffError| tiff_error(path, e);
+    let (cw, ch) = dec.chunk_dimensions();
+    let (cw, ch) = (cw as usize, ch as usize);
+    if cw == 0 || ch == 0 {
+        return Err(corrupt(path, format!("chunks of {cw} × {ch} {unit}")));
+    }
+    let mut limits = tag_limits(file_len);
+    limits.decoding_buffer_size =
+        cw.min(width).saturating_mul(ch.min(height)).saturating_mul(bytes_per_pixel).saturating_add(1 << 16);
+    let mut dec = dec.with_limits(limits);
+    let chunk_type = dec.get_chunk_type();
+    let (across, count) = match chunk_type {
+        ChunkType::Strip => (1, dec.strip_count().map_err(err)?),
+        ChunkType::Tile => (width.div_ceil(cw), dec.tile_count().map_err(err)?),
+    };
+    for idx in 0..count {
+        let (x0, y0) = match chunk_type {
+            ChunkType::Strip => (0, idx as usize * ch),
+            ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
+        };
+        if x0 >= width || y0 >= height {
+            continue;
+        }
+        let chunk = dec.read_chunk(idx).map_err(err)?;
+        take(chunk, [x0, y0, cw.min(width - x0), ch.min(height - y0)])?;
+    }
+    Ok(dec)
 }
 
 /// Refuse, with a message a user understands, every layout that is not one
@@ -556,41 +569,17 @@ pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
     }
     check_chunks_present(path, &mut dec, file_len, width, height)?;
     let s = samples as usize;
-    let (cw, ch) = dec.chunk_dimensions();
-    let (cw, ch) = (cw as usize, ch as usize);
-    if cw == 0 || ch == 0 {
-        return Err(corrupt(path, format!("chunks of {cw} × {ch} pixels")));
-    }
-    let mut limits = tag_limits(file_len);
-    limits.decoding_buffer_size =
-        cw.min(width).saturating_mul(ch.min(height)).saturating_mul(s).saturating_add(1 << 16);
-    dec = dec.with_limits(limits);
-    let chunk_type = dec.get_chunk_type();
-    let (across, count) = match chunk_type {
-        ChunkType::Strip => (1, dec.strip_count().map_err(err)?),
-        ChunkType::Tile => (width.div_ceil(cw), dec.tile_count().map_err(err)?),
-    };
     let mut rgb = vec![0u8; width * height * 3];
-    for idx in 0..count {
-        let (x0, y0) = match chunk_type {
-            ChunkType::Strip => (0, idx as usize * ch),
-            ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
-        };
-        if x0 >= width || y0 >= height {
-            continue;
-        }
-        let DecodingResult::U8(data) = dec.read_chunk(idx).map_err(err)? else {
+    let dec = read_chunks(path, dec, file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
+        let DecodingResult::U8(data) = chunk else {
             return Err(corrupt(path, "8-bit samples decoded to another type"));
         };
-        // The decoder crops edge tiles and the last strip to the image.
-        let (dw, dh) = (cw.min(width - x0), ch.min(height - y0));
-        let stride = dw;
         if data.len() < dh * dw * s {
             return Err(corrupt(path, format!("a chunk at pixel ({x0}, {y0}) decoded to fewer pixels than its size")));
         }
         for r in 0..dh {
             for c in 0..dw {
-                let src = &data[(r * stride + c) * s..];
+                let src = &data[(r * dw + c) * s..];
                 let dst = &mut rgb[((y0 + r) * width + x0 + c) * 3..][..3];
                 if s == 1 {
                     dst.fill(src[0]);
@@ -599,8 +588,9 @@ pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
                 }
             }
         }
-    }
-    dec = dec.with_limits(tag_limits(file_len));
+        Ok(())
+    })?;
+    let mut dec = dec.with_limits(tag_limits(file_len));
     let georef = raw_georef(path, &mut dec)?;
     Ok(Rgb8Tiff { width, height, rgb, georef })
 }
