@@ -57,6 +57,20 @@ pub struct LocalTangent {
     pub formula: String,
 }
 
+/// Why a grid placement (first sample centre `origin`, `step` between
+/// samples, in source units) cannot place anything: a value that is not
+/// finite, or a zero step. `None` if it is usable.
+pub fn unusable_placement(origin: [f64; 2], step: [f64; 2]) -> Option<String> {
+    let usable = origin.iter().chain(&step).all(|v| v.is_finite()) && step.iter().all(|&s| s != 0.0);
+    (!usable).then(|| {
+        format!(
+            "georeference places the first sample at ({}, {}) with steps {} × {}; \
+             each must be finite and the steps non-zero",
+            origin[0], origin[1], step[0], step[1]
+        )
+    })
+}
+
 /// A regular grid of heights in metres.
 #[derive(Clone, Debug)]
 pub struct Heightfield {

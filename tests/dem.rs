@@ -685,6 +685,29 @@ fn zero_or_negative_spacing_is_invalid() {
     }
 }
 
+/// A georeference that places nothing: before this was refused, a GeoTIFF
+/// whose tie point is NaN built with `null` coordinates in tileset.json.
+#[test]
+fn a_georeference_with_a_non_finite_corner_is_corrupt() {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let dir = tempfile::tempdir().unwrap();
+    for (name, corner) in [("nan.tif", f64::NAN), ("inf.tif", f64::INFINITY)] {
+        let p = dir.path().join(name);
+        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
+        let mut img = enc.new_image::<colortype::Gray32Float>(3, 3).unwrap();
+        let e = img.encoder();
+        e.write_tag(Tag::ModelPixelScaleTag, &[10.0, 10.0, 0.0][..]).unwrap();
+        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner, 5_000_000.0, 0.0][..]).unwrap();
+        // GTModelType projected, ProjectedCSType UTM 10N.
+        e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32610][..]).unwrap();
+        img.write_data(&[1.0f32; 9]).unwrap();
+        assert_fails(load1(&p), "Corrupt", name, &format!("georeference places the first sample at ({corner}"));
+    }
+    let p = write_asc(dir.path(), "nan.asc", "ncols 2\nnrows 2\nxllcorner nan\nyllcorner 0\ncellsize 1\n1 2\n3 4\n");
+    assert_fails(load1(&p), "Corrupt", "nan.asc", "georeference places the first sample at (NaN");
+}
+
 #[test]
 fn bad_vertical_scale_is_invalid() {
     for s in [0.0, f64::NAN, f64::INFINITY] {

@@ -378,6 +378,87 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
 
 // ------------------------------------------------------------ normal map
 
+/// A photo whose GeoTIFF pixel size is NaN or infinite was placed with NaN
+/// texel coordinates and the build exited 0; one of size 0 was refused as
+/// not covering the DEM at columns "inf..inf". Each now names the file and
+/// its unusable georeference, exits 2 and writes nothing.
+#[test]
+fn a_texture_with_an_unusable_georeference_is_refused() {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("dem.tif");
+    write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
+    let out = tmp.path().join("out");
+    for (name, scale) in [("nan.tif", f64::NAN), ("inf.tif", f64::INFINITY), ("zero.tif", 0.0)] {
+        let photo = tmp.path().join(name);
+        let mut enc = TiffEncoder::new(std::fs::File::create(&photo).unwrap()).unwrap();
+        let mut img = enc.new_image::<colortype::RGB8>(122, 122).unwrap();
+        let e = img.encoder();
+        e.write_tag(Tag::ModelPixelScaleTag, &[scale, scale, 0.0][..]).unwrap();
+        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 500_000.0, 5_000_000.0, 0.0][..]).unwrap();
+        e.write_tag(Tag::GeoKeyDirectoryTag, &geotiff_keys(32610)[..]).unwrap();
+        img.write_data(&vec![90u8; 122 * 122 * 3]).unwrap();
+        let o =
+            cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", photo.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{name}: {err}");
+        assert!(err.contains(name) && err.contains("georeference places the first sample"), "{name}: {err}");
+        assert!(!out.exists(), "{name}: output written");
+    }
+}
+
+/// Cut and flip bytes of a PNG, a JPEG and a georeferenced RGB GeoTIFF
+/// texture: loading each must return, never panic (the texture side of
+/// `dem::mangled_fixtures_never_panic`; `fuzz/` has the `texture` target).
+/// The intact images load and land georeferenced or stretched, so the
+/// mutants start from files the loader takes.
+#[test]
+fn mangled_texture_images_never_panic() {
+    use terrachunk::texture::source::load_image;
+    let rounds: usize = std::env::var("TERRACHUNK_FUZZ_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(24);
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("dem.tif");
+    write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
+    let hf = terrachunk::dem::load(&[dem], &Default::default()).unwrap();
+    let photo = tmp.path().join("photo.tif");
+    write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610);
+    let img = image::RgbImage::from_fn(60, 50, |c, r| image::Rgb([(c * 4) as u8, (r * 5) as u8, 90]));
+    let (png, jpg) = (tmp.path().join("photo.png"), tmp.path().join("photo.jpg"));
+    img.save(&png).unwrap();
+    img.save(&jpg).unwrap();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for (path, placement) in [(photo, "georeferenced"), (png, "stretched"), (jpg, "stretched")] {
+        let source = load_image(&path, &hf).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(source.placement.starts_with(placement), "{}: {}", path.display(), source.placement);
+        assert_eq!(source.rgb.len(), source.width * source.height * 3);
+        let bytes = std::fs::read(&path).unwrap();
+        let mangled = path.with_file_name(format!("mangled.{}", path.extension().unwrap().to_str().unwrap()));
+        for k in 0..rounds {
+            let mut b = bytes.clone();
+            if k % 3 == 0 {
+                b.truncate((next() as usize) % bytes.len());
+            } else {
+                for _ in 0..4 {
+                    let span = if k % 2 == 0 { bytes.len().min(512) } else { bytes.len() };
+                    let i = (next() as usize) % span;
+                    b[i] ^= (next() as u8) | 1;
+                }
+            }
+            std::fs::write(&mangled, &b).unwrap();
+            if let Ok(s) = load_image(&mangled, &hf) {
+                assert_eq!(s.rgb.len(), s.width * s.height * 3, "{} round {k}", path.display());
+            }
+        }
+    }
+}
+
 #[test]
 fn the_normal_map_holds_the_dem_normals_in_the_vertex_frame() {
     // A plane rising 0.3 m per metre eastward (10 m cells): every normal is

@@ -447,6 +447,10 @@ fn raw_georef<R: std::io::Read + std::io::Seek>(
     let c = if point { 0.0 } else { 0.5 };
     let origin = [tx + (c - ti) * sx, ty - (c - tj) * sy];
     let step = [sx, -sy];
+    // A texture is placed by it alone (a DEM's is checked again in `dem::load`).
+    if let Some(why) = crate::heightfield::unusable_placement(origin, step) {
+        return Err(corrupt(path, why));
+    }
     let epsg = |key: u16| keys.get(&key).copied().filter(|&c| c != 0 && c != 32767).map(u32::from);
     let model = keys.get(&GT_MODEL_TYPE).copied().unwrap_or_else(|| {
         if keys.contains_key(&PROJECTED_CS_TYPE) {

@@ -354,6 +354,11 @@ fn validate(path: &Path, hf: &Heightfield) -> Result<(), DemError> {
             ),
         ));
     }
+    // Written to the tileset (extras, and its placement on the globe): a
+    // NaN there became `null` in tileset.json.
+    if let Some(why) = crate::heightfield::unusable_placement(hf.georef.origin, hf.georef.step) {
+        return Err(corrupt(path, why));
+    }
     let infinite = hf.heights.iter().filter(|h| h.is_infinite()).count();
     if infinite > 0 {
         return Err(invalid(path, format!("{infinite} samples are infinite; heights must be finite (NaN = nodata)")));
