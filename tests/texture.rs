@@ -412,7 +412,8 @@ fn a_texture_with_an_unusable_georeference_is_refused() {
 /// texture: loading each must return, never panic (the texture side of
 /// `dem::mangled_fixtures_never_panic`; `fuzz/` has the `texture` target).
 /// The intact images load and land georeferenced or stretched, so the
-/// mutants start from files the loader takes.
+/// mutants start from files the loader takes. `TERRACHUNK_TEXTURE_SEEDS=DIR`
+/// also copies them there, as the `texture` fuzz target's seeds.
 #[test]
 fn mangled_texture_images_never_panic() {
     use terrachunk::texture::source::load_image;
@@ -434,7 +435,12 @@ fn mangled_texture_images_never_panic() {
         state ^= state << 17;
         state
     };
+    // The fuzz target's seeds (fuzz/README.md): these intact images.
+    let seeds = std::env::var_os("TERRACHUNK_TEXTURE_SEEDS").map(PathBuf::from);
     for (path, placement) in [(photo, "georeferenced"), (png, "stretched"), (jpg, "stretched")] {
+        if let Some(dir) = &seeds {
+            std::fs::copy(&path, dir.join(path.file_name().unwrap())).unwrap();
+        }
         let source = load_image(&path, &hf).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert!(source.placement.starts_with(placement), "{}: {}", path.display(), source.placement);
         assert_eq!(source.rgb.len(), source.width * source.height * 3);

@@ -40,3 +40,35 @@ pub fn load_bytes(name: &str, data: &[u8]) {
         assert!(filled.iter().all(|h| h.is_finite()), "void fill left a non-finite height");
     }
 }
+
+/// Loads `data` as a texture image (`--texture`: PNG, JPEG or 8-bit
+/// GeoTIFF, told apart by their first bytes) over a 41 × 41 DEM of 10 m
+/// samples in UTM zone 10N, so a georeferenced image is placed by its
+/// keys, and checks the result.
+pub fn load_texture_bytes(data: &[u8]) {
+    use terrachunk::heightfield::{Crs, Georef, Heightfield};
+    let path = scratch("photo.img");
+    std::fs::write(&path, data).expect("write the input");
+    let hf = Heightfield {
+        width: 41,
+        height: 41,
+        heights: vec![100.0; 41 * 41],
+        spacing_m: [10.0, 10.0],
+        georef: Georef {
+            crs: Crs::Projected { epsg: Some(32610) },
+            origin: [500_005.0, 4_999_995.0],
+            step: [10.0, -10.0],
+            local_tangent: None,
+        },
+        source: "dem.tif".into(),
+    };
+    let Ok(source) = terrachunk::texture::source::load_image(&path, &hf) else {
+        return;
+    };
+    // What the texture stage relies on.
+    assert!(source.width > 0 && source.height > 0, "{} × {} image", source.width, source.height);
+    assert_eq!(source.rgb.len(), source.width * source.height * 3);
+    let finite = source.to_px.iter().all(|(a, b)| a.is_finite() && b.is_finite() && *b != 0.0);
+    assert!(finite, "DEM-to-pixel map {:?}", source.to_px);
+    assert!(source.texel_m.iter().all(|t| t.is_finite() && *t > 0.0), "texel size {:?}", source.texel_m);
+}
