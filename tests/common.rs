@@ -239,3 +239,43 @@ pub(crate) fn rewrite_glb(path: &Path, edit: impl FnOnce(&mut Value, &mut Vec<u8
     out.extend_from_slice(&bin);
     std::fs::write(path, out).unwrap();
 }
+
+/// Cut and flipped copies of a file's bytes, the same on every run
+/// (xorshift from a fixed seed): what the loaders' never-panic tests feed
+/// them. Every third copy is cut short; the others have four bytes flipped,
+/// in every other copy within the first 512 bytes, where sizes live.
+pub(crate) struct Mangler(u64);
+
+impl Mangler {
+    pub(crate) fn new(seed: u64) -> Self {
+        Mangler(seed)
+    }
+
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Copy `k` of `bytes`.
+    pub(crate) fn mangle(&mut self, bytes: &[u8], k: usize) -> Vec<u8> {
+        let mut b = bytes.to_vec();
+        if k.is_multiple_of(3) {
+            b.truncate((self.next() as usize) % bytes.len());
+        } else {
+            for _ in 0..4 {
+                let span = if k.is_multiple_of(2) { bytes.len().min(512) } else { bytes.len() };
+                let i = (self.next() as usize) % span;
+                b[i] ^= (self.next() as u8) | 1;
+            }
+        }
+        b
+    }
+}
+
+/// How many mangled copies of each file the never-panic tests load:
+/// `TERRACHUNK_FUZZ_ROUNDS`, default 24.
+pub(crate) fn mangle_rounds() -> usize {
+    std::env::var("TERRACHUNK_FUZZ_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(24)
+}

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use terrachunk::dem::{DemError, LoadOptions, load};
 use terrachunk::heightfield::{Crs, Heightfield};
 
-use crate::common::fixture;
+use crate::common::{Mangler, fixture, mangle_rounds};
 
 // ---------------------------------------------------------------- helpers
 
@@ -835,7 +835,6 @@ fn corrupt_ascii_token_names_the_line() {
 /// `TERRACHUNK_FUZZ_ROUNDS` (default 24) sets the mutations per fixture.
 #[test]
 fn mangled_fixtures_never_panic() {
-    let rounds: usize = std::env::var("TERRACHUNK_FUZZ_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(24);
     let dir = tempfile::tempdir().unwrap();
     let names = [
         "west_bijou_gully_3m.asc",
@@ -849,28 +848,12 @@ fn mangled_fixtures_never_panic() {
         "fuji_crop_terrainrgb.png",
         "hgt_mosaic/N00E000.hgt",
     ];
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
+    let mut mangler = Mangler::new(0x2545_f491_4f6c_dd1d);
     for name in names {
         let bytes = std::fs::read(fixture(name)).unwrap();
         let p = dir.path().join(Path::new(name).file_name().unwrap());
-        for k in 0..rounds {
-            let mut b = bytes.clone();
-            if k % 3 == 0 {
-                b.truncate((next() as usize) % bytes.len());
-            } else {
-                // Flip a few bytes, mostly in the header where sizes live.
-                for _ in 0..4 {
-                    let span = if k % 2 == 0 { bytes.len().min(512) } else { bytes.len() };
-                    let i = (next() as usize) % span;
-                    b[i] ^= (next() as u8) | 1;
-                }
-            }
+        for k in 0..mangle_rounds() {
+            let b = mangler.mangle(&bytes, k);
             std::fs::write(&p, &b).unwrap();
             let _ = load1(&p);
         }

@@ -15,7 +15,9 @@ use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify;
 
-use crate::common::{all_files, fixture, khronos_validate, rewrite_glb, tileset, verified, write_asc};
+use crate::common::{
+    Mangler, all_files, fixture, khronos_validate, mangle_rounds, rewrite_glb, tileset, verified, write_asc,
+};
 
 fn build_with(dem: &Path, out: &Path, config: Config, texture: TextureSource) -> Report {
     let opts = BuildOptions {
@@ -417,7 +419,6 @@ fn a_texture_with_an_unusable_georeference_is_refused() {
 #[test]
 fn mangled_texture_images_never_panic() {
     use terrachunk::texture::source::load_image;
-    let rounds: usize = std::env::var("TERRACHUNK_FUZZ_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(24);
     let tmp = tempfile::tempdir().unwrap();
     let dem = tmp.path().join("dem.tif");
     write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
@@ -428,13 +429,7 @@ fn mangled_texture_images_never_panic() {
     let (png, jpg) = (tmp.path().join("photo.png"), tmp.path().join("photo.jpg"));
     img.save(&png).unwrap();
     img.save(&jpg).unwrap();
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
+    let mut mangler = Mangler::new(0x9e37_79b9_7f4a_7c15);
     // The fuzz target's seeds (fuzz/README.md): these intact images.
     let seeds = std::env::var_os("TERRACHUNK_TEXTURE_SEEDS").map(PathBuf::from);
     for (path, placement) in [(photo, "georeferenced"), (png, "stretched"), (jpg, "stretched")] {
@@ -446,17 +441,8 @@ fn mangled_texture_images_never_panic() {
         assert_eq!(source.rgb.len(), source.width * source.height * 3);
         let bytes = std::fs::read(&path).unwrap();
         let mangled = path.with_file_name(format!("mangled.{}", path.extension().unwrap().to_str().unwrap()));
-        for k in 0..rounds {
-            let mut b = bytes.clone();
-            if k % 3 == 0 {
-                b.truncate((next() as usize) % bytes.len());
-            } else {
-                for _ in 0..4 {
-                    let span = if k % 2 == 0 { bytes.len().min(512) } else { bytes.len() };
-                    let i = (next() as usize) % span;
-                    b[i] ^= (next() as u8) | 1;
-                }
-            }
+        for k in 0..mangle_rounds() {
+            let b = mangler.mangle(&bytes, k);
             std::fs::write(&mangled, &b).unwrap();
             if let Ok(s) = load_image(&mangled, &hf) {
                 assert_eq!(s.rgb.len(), s.width * s.height * 3, "{} round {k}", path.display());
