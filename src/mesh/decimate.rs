@@ -404,16 +404,16 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
                 }),
             );
             // The neighbours v may go onto, by v's own error in its new
-            // triangle, each past cheap tests that need no scan.
+            // triangle; the other probes are tested as each is tried below
+            // (only up to the one taken).
             options.clear();
             for (k, &e) in star.iter().enumerate() {
                 let u = tin.ends(e).1;
                 if !fan(tin, &star, u).all(|t| counter_clockwise(&t)) {
                     continue;
                 }
-                let mut offs = probes.iter().map(|&q| probe_off(fan(tin, &star, u), q, &queue.target));
-                let own = offs.next().unwrap_or(0.0);
-                if own <= 1.0 && offs.all(|o| o <= 1.0) {
+                let own = probe_off(fan(tin, &star, u), probes[0], &queue.target);
+                if own <= 1.0 {
                     options.push((own, k));
                 }
             }
@@ -425,8 +425,12 @@ fn thin(tin: &mut Tin, lines: &mut Lines, queue: &mut Queue) {
             // lines), so an accepted collapse records those scans rather
             // than scanning its triangles again.
             let chosen = options.iter().map(|&(_, k)| star[k]).find(|&e| {
+                let u = tin.ends(e).1;
+                if !probes[1..].iter().all(|&q| probe_off(fan(tin, &star, u), q, &queue.target) <= 1.0) {
+                    return false;
+                }
                 found.clear();
-                kept_fan(tin, &star, tin.ends(e).1).all(|(t, tri)| {
+                kept_fan(tin, &star, u).all(|(t, tri)| {
                     fits(queue.grid, queue.clip, lines, &queue.target, &tri, voids)
                         .map(|s| found.push((t, s)))
                         .is_some()
