@@ -708,6 +708,34 @@ fn a_georeference_with_a_non_finite_corner_is_corrupt() {
     assert_fails(load1(&p), "Corrupt", "nan.asc", "georeference places the first sample at (NaN");
 }
 
+/// A geographic grid whose rows lie beyond a pole (here the tie point
+/// written as latitude, longitude: 120° "north") was refused for a sample
+/// spacing of −55.8 m, which does not say why (and one beyond 270° built,
+/// placed nowhere on the globe); now the latitude is named, with a hint.
+#[test]
+fn a_geographic_grid_beyond_a_pole_is_corrupt() {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, lon: f64, lat: f64| {
+        let p = dir.path().join(name);
+        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
+        let mut img = enc.new_image::<colortype::Gray32Float>(3, 3).unwrap();
+        let e = img.encoder();
+        e.write_tag(Tag::ModelPixelScaleTag, &[0.001, 0.001, 0.0][..]).unwrap();
+        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, lon, lat, 0.0][..]).unwrap();
+        // GTModelType geographic, GeographicType WGS 84.
+        e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 2, 2048, 0, 1, 4326][..]).unwrap();
+        img.write_data(&[1.0f32; 9]).unwrap();
+        p
+    };
+    let swapped = write("swapped.tif", 35.0, 120.0);
+    assert_fails(load1(&swapped), "Corrupt", "swapped.tif", "beyond ±90° (are longitude and latitude swapped?)");
+    // The same tie point the right way round, and a grid whose rows end at a pole, load.
+    assert!(matches!(ok(&write("right.tif", 120.0, 35.0)).georef.crs, Crs::Geographic { .. }));
+    ok(&write("pole.tif", 10.0, 90.0));
+}
+
 #[test]
 fn bad_vertical_scale_is_invalid() {
     for s in [0.0, f64::NAN, f64::INFINITY] {

@@ -344,6 +344,21 @@ fn validate(path: &Path, hf: &Heightfield) -> Result<(), DemError> {
             format!("{} heights decoded for a {} × {} grid", hf.heights.len(), hf.width, hf.height),
         ));
     }
+    // Rows beyond a pole: most often longitude and latitude swapped. Before
+    // the spacing, which the local tangent plane makes negative there.
+    if matches!(hf.georef.crs, crate::heightfield::Crs::Geographic { .. }) {
+        let first = hf.georef.origin[1];
+        let last = first + hf.georef.step[1] * (hf.height - 1) as f64;
+        if first.abs().max(last.abs()) > 90.0 + 1e-9 {
+            return Err(corrupt(
+                path,
+                format!(
+                    "georeference puts the sample rows at latitudes {first}..{last}°, beyond ±90° \
+                     (are longitude and latitude swapped?)"
+                ),
+            ));
+        }
+    }
     let [sx, sz] = hf.spacing_m;
     if !(sx.is_finite() && sz.is_finite() && sx > 0.0 && sz > 0.0) {
         return Err(invalid(
