@@ -685,23 +685,30 @@ fn zero_or_negative_spacing_is_invalid() {
     }
 }
 
+/// A 3 × 3 float GeoTIFF whose first pixel's corner is `corner` and whose
+/// pixels are `pixel` wide, in EPSG `epsg` (4326 geographic, else projected).
+fn write_georef_tif(path: &Path, corner: [f64; 2], pixel: f64, epsg: u16) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(3, 3).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelPixelScaleTag, &[pixel, pixel, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).unwrap();
+    // GTModelType (1 projected, 2 geographic) and its ProjectedCSType or GeographicType.
+    let (model, key) = if epsg == 4326 { (2, 2048) } else { (1, 3072) };
+    e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, model, key, 0, 1, epsg][..]).unwrap();
+    img.write_data(&[1.0f32; 9]).unwrap();
+}
+
 /// A georeference that places nothing: before this was refused, a GeoTIFF
 /// whose tie point is NaN built with `null` coordinates in tileset.json.
 #[test]
 fn a_georeference_with_a_non_finite_corner_is_corrupt() {
-    use tiff::encoder::{TiffEncoder, colortype};
-    use tiff::tags::Tag;
     let dir = tempfile::tempdir().unwrap();
     for (name, corner) in [("nan.tif", f64::NAN), ("inf.tif", f64::INFINITY)] {
         let p = dir.path().join(name);
-        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
-        let mut img = enc.new_image::<colortype::Gray32Float>(3, 3).unwrap();
-        let e = img.encoder();
-        e.write_tag(Tag::ModelPixelScaleTag, &[10.0, 10.0, 0.0][..]).unwrap();
-        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner, 5_000_000.0, 0.0][..]).unwrap();
-        // GTModelType projected, ProjectedCSType UTM 10N.
-        e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32610][..]).unwrap();
-        img.write_data(&[1.0f32; 9]).unwrap();
+        write_georef_tif(&p, [corner, 5_000_000.0], 10.0, 32610);
         assert_fails(load1(&p), "Corrupt", name, &format!("georeference places the first sample at ({corner}"));
     }
     let p = write_asc(dir.path(), "nan.asc", "ncols 2\nnrows 2\nxllcorner nan\nyllcorner 0\ncellsize 1\n1 2\n3 4\n");
@@ -714,19 +721,10 @@ fn a_georeference_with_a_non_finite_corner_is_corrupt() {
 /// placed nowhere on the globe); now the latitude is named, with a hint.
 #[test]
 fn a_geographic_grid_beyond_a_pole_is_corrupt() {
-    use tiff::encoder::{TiffEncoder, colortype};
-    use tiff::tags::Tag;
     let dir = tempfile::tempdir().unwrap();
     let write = |name: &str, lon: f64, lat: f64| {
         let p = dir.path().join(name);
-        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap()).unwrap();
-        let mut img = enc.new_image::<colortype::Gray32Float>(3, 3).unwrap();
-        let e = img.encoder();
-        e.write_tag(Tag::ModelPixelScaleTag, &[0.001, 0.001, 0.0][..]).unwrap();
-        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, lon, lat, 0.0][..]).unwrap();
-        // GTModelType geographic, GeographicType WGS 84.
-        e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 2, 2048, 0, 1, 4326][..]).unwrap();
-        img.write_data(&[1.0f32; 9]).unwrap();
+        write_georef_tif(&p, [lon, lat], 0.001, 4326);
         p
     };
     let swapped = write("swapped.tif", 35.0, 120.0);

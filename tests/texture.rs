@@ -295,15 +295,15 @@ fn write_dem_tif(path: &Path, w: u32, h: u32, corner: [f64; 2], epsg: u16) {
     img.write_data(&data).unwrap();
 }
 
-/// An RGB GeoTIFF of 5 m pixels whose red is its column and green its row.
-fn write_photo_tif(path: &Path, w: u32, h: u32, corner: [f64; 2], epsg: u16) {
+/// An RGB GeoTIFF of `pixel_m` pixels whose red is its column and green its row.
+fn write_photo_tif(path: &Path, w: u32, h: u32, corner: [f64; 2], epsg: u16, pixel_m: f64) {
     use tiff::encoder::{TiffEncoder, colortype};
     use tiff::tags::Tag;
     let data: Vec<u8> = (0..w * h).flat_map(|k| [(k % w) as u8, (k / w) as u8, 90]).collect();
     let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
     let mut img = enc.new_image::<colortype::RGB8>(w, h).unwrap();
     let e = img.encoder();
-    e.write_tag(Tag::ModelPixelScaleTag, &[5.0, 5.0, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelPixelScaleTag, &[pixel_m, pixel_m, 0.0][..]).unwrap();
     e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).unwrap();
     e.write_tag(Tag::GeoKeyDirectoryTag, &geotiff_keys(epsg)[..]).unwrap();
     img.rows_per_strip(7).unwrap();
@@ -320,7 +320,7 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
     let dem = tmp.path().join("dem.tif");
     write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
     let photo = tmp.path().join("photo.tif");
-    write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610);
+    write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610, 5.0);
     let out = tmp.path().join("out");
     // With a normal map from the 10 m DEM: its tiles differ in size from the
     // 5 m photo's, so it gets its own TEXCOORD_1.
@@ -357,9 +357,9 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
 
     // Another zone, or a photo that stops short of the DEM: refused, named.
     let wrong = tmp.path().join("zone11.tif");
-    write_photo_tif(&wrong, 122, 122, [499_900.0, 5_000_100.0], 32611);
+    write_photo_tif(&wrong, 122, 122, [499_900.0, 5_000_100.0], 32611, 5.0);
     let short = tmp.path().join("short.tif");
-    write_photo_tif(&short, 60, 122, [499_900.0, 5_000_100.0], 32610);
+    write_photo_tif(&short, 60, 122, [499_900.0, 5_000_100.0], 32610, 5.0);
     for (img, says) in [(&wrong, "EPSG:32611 but the DEM is in EPSG:32610"), (&short, "does not cover the DEM")] {
         let out = tmp.path().join("bad");
         let opts = BuildOptions {
@@ -378,29 +378,19 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
     }
 }
 
-// ------------------------------------------------------------ normal map
-
 /// A photo whose GeoTIFF pixel size is NaN or infinite was placed with NaN
 /// texel coordinates and the build exited 0; one of size 0 was refused as
 /// not covering the DEM at columns "inf..inf". Each now names the file and
 /// its unusable georeference, exits 2 and writes nothing.
 #[test]
 fn a_texture_with_an_unusable_georeference_is_refused() {
-    use tiff::encoder::{TiffEncoder, colortype};
-    use tiff::tags::Tag;
     let tmp = tempfile::tempdir().unwrap();
     let dem = tmp.path().join("dem.tif");
     write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
     let out = tmp.path().join("out");
     for (name, scale) in [("nan.tif", f64::NAN), ("inf.tif", f64::INFINITY), ("zero.tif", 0.0)] {
         let photo = tmp.path().join(name);
-        let mut enc = TiffEncoder::new(std::fs::File::create(&photo).unwrap()).unwrap();
-        let mut img = enc.new_image::<colortype::RGB8>(122, 122).unwrap();
-        let e = img.encoder();
-        e.write_tag(Tag::ModelPixelScaleTag, &[scale, scale, 0.0][..]).unwrap();
-        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 500_000.0, 5_000_000.0, 0.0][..]).unwrap();
-        e.write_tag(Tag::GeoKeyDirectoryTag, &geotiff_keys(32610)[..]).unwrap();
-        img.write_data(&vec![90u8; 122 * 122 * 3]).unwrap();
+        write_photo_tif(&photo, 122, 122, [500_000.0, 5_000_000.0], 32610, scale);
         let o =
             cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", photo.to_str().unwrap()]);
         let err = String::from_utf8_lossy(&o.stderr);
@@ -424,7 +414,7 @@ fn mangled_texture_images_never_panic() {
     write_dem_tif(&dem, 41, 41, [500_000.0, 5_000_000.0], 32610);
     let hf = terrachunk::dem::load(&[dem], &Default::default()).unwrap();
     let photo = tmp.path().join("photo.tif");
-    write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610);
+    write_photo_tif(&photo, 122, 122, [499_900.0, 5_000_100.0], 32610, 5.0);
     let img = image::RgbImage::from_fn(60, 50, |c, r| image::Rgb([(c * 4) as u8, (r * 5) as u8, 90]));
     let (png, jpg) = (tmp.path().join("photo.png"), tmp.path().join("photo.jpg"));
     img.save(&png).unwrap();
@@ -450,6 +440,8 @@ fn mangled_texture_images_never_panic() {
         }
     }
 }
+
+// ------------------------------------------------------------ normal map
 
 #[test]
 fn the_normal_map_holds_the_dem_normals_in_the_vertex_frame() {
