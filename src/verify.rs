@@ -178,12 +178,19 @@ fn file_err(path: &Path, what: impl Into<String>) -> VerifyError {
 /// Reads one chunk file.
 pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
     let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
-    let decoded = crate::output::compress::decompress(&bytes).map_err(|e| file_err(path, e))?;
+    parse_chunk(path, &bytes)
+}
+
+/// [`read_chunk`] on bytes already read from `path` (which errors name):
+/// any bytes give a chunk or an error, never a panic (the `chunk` fuzz
+/// target).
+pub fn parse_chunk(path: &Path, bytes: &[u8]) -> Result<ChunkFile, VerifyError> {
+    let decoded = crate::output::compress::decompress(bytes).map_err(|e| file_err(path, e))?;
     let quantization_m = decoded.as_ref().map(|d| d.step_m);
-    let bytes = decoded.map_or(bytes, |d| d.glb);
+    let bytes = decoded.map_or_else(|| bytes.to_vec(), |d| d.glb);
     let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
     let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
-    let (doc, buffers, images) = gltf::import_slice(&bytes).map_err(|e| file_err(path, format!("bad glTF: {e}")))?;
+    let (doc, buffers, images) = crate::output::gltf::import(&bytes).map_err(|e| file_err(path, e))?;
     let node = &json["nodes"][0];
     let tc = &node["extras"]["terrachunk"];
     let num = |v: &Value, what: &str| v.as_f64().ok_or_else(|| file_err(path, format!("node extras lack {what}")));

@@ -7,17 +7,17 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use serde_json::Value;
-use terrachunk::config::{Config, Thin, VertexCache};
+use serde_json::{Value, json};
+use terrachunk::config::{Compress, Config, Thin, VertexCache};
 use terrachunk::mesh::decimate::Grid;
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::{CHUNK_VERTICES, Estimate, build};
 use terrachunk::quadtree::ChunkTree;
-use terrachunk::verify::verify;
+use terrachunk::verify::{read_chunk, verify};
 
 use crate::common::{
-    all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, options, rewrite_glb, tileset, verified,
-    with_config, write_asc,
+    Mangler, all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, mangle_rounds, options,
+    rewrite_glb, tileset, verified, with_config, write_asc,
 };
 
 // ---------------------------------------------------------------- real data
@@ -452,6 +452,174 @@ fn verify_names_an_unreadable_chunk_and_still_checks_its_children() {
     assert!(r.failures[0].contains(&name) && r.failures[0].contains("not a GLB"), "{:?}", r.failures);
     let below = r.levels.keys().filter(|&&l| l > 1).count();
     assert!(below > 0 && r.levels.values().all(|l| l.chunks > 0), "{:?}", r.levels.keys());
+}
+
+/// Damaged chunk files, in every compress mode, are errors that name the
+/// file: never a panic or an abort in `verify`, `inspect` or the viewer,
+/// which read them alike. Each round cuts or flips bytes of a built chunk
+/// (`Mangler`), then sets one number of its JSON to a value a damaged file
+/// might hold. `TERRACHUNK_FUZZ_ROUNDS` (default 24) sets the rounds per
+/// mode; `TERRACHUNK_CHUNK_SEEDS=DIR` copies the chunks there, the seeds of
+/// the `chunk` fuzz target.
+#[test]
+fn damaged_chunks_are_errors_never_panics() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seeds = std::env::var_os("TERRACHUNK_CHUNK_SEEDS").map(PathBuf::from);
+    let mut mangler = Mangler::new(0x9e37_79b9_7f4a_7c15);
+    let odd = [json!(0), json!(-1), json!(3), json!(65535), json!(1u64 << 40), json!(1e300), json!(2.5), json!("x")];
+    for compress in [Compress::None, Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1] {
+        let out = tmp.path().join(format!("{compress:?}"));
+        let cfg = Config { max_error_m: 0.5, compress, ..Config::default() };
+        build(&with_config(&fixture("fuji_crop_terrainrgb.png"), &out, cfg)).unwrap();
+        let chunks: Vec<_> =
+            all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")).collect();
+        if let Some(dir) = &seeds {
+            std::fs::create_dir_all(dir).unwrap();
+            for (n, (_, bytes)) in chunks.iter().enumerate() {
+                std::fs::write(dir.join(format!("{compress:?}-{n}.glb")), bytes).unwrap();
+            }
+        }
+        let p = tmp.path().join("damaged.glb");
+        let read_names_it = |what: &str| match read_chunk(&p) {
+            Ok(_) => {}
+            Err(e) => assert!(e.to_string().contains("damaged.glb"), "{compress:?}, {what}: {e}"),
+        };
+        for k in 0..mangle_rounds() {
+            let (_, bytes) = &chunks[k % chunks.len()];
+            std::fs::write(&p, mangler.mangle(bytes, k)).unwrap();
+            read_names_it(&format!("mangled copy {k}"));
+            std::fs::write(&p, bytes).unwrap();
+            let mut at = String::new();
+            rewrite_glb(&p, |j, _| {
+                let numbers = number_pointers(j, String::new());
+                at = numbers[(k * 7919) % numbers.len()].clone();
+                *j.pointer_mut(&at).unwrap() = odd[k % odd.len()].clone();
+            });
+            read_names_it(&format!("{at} = {}", odd[k % odd.len()]));
+        }
+    }
+}
+
+/// The JSON pointers of every number in `v`.
+fn number_pointers(v: &Value, at: String) -> Vec<String> {
+    match v {
+        Value::Object(o) => o.iter().flat_map(|(k, x)| number_pointers(x, format!("{at}/{k}"))).collect(),
+        Value::Array(a) => a.iter().enumerate().flat_map(|(i, x)| number_pointers(x, format!("{at}/{i}"))).collect(),
+        Value::Number(_) => vec![at],
+        _ => Vec::new(),
+    }
+}
+
+/// Each kind of damage that once made the chunk reader panic or abort,
+/// found by `damaged_chunks_are_errors_never_panics` and the `chunk` fuzz
+/// target, now an error that says what is wrong (or, where the file still
+/// reads as glTF, no error: `verify`'s checks then judge the chunk).
+#[test]
+fn chunk_damage_that_once_panicked_is_an_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut built: Vec<(Compress, PathBuf)> = Vec::new();
+    type Edit = fn(&mut Value);
+    let cases: [(&str, Compress, Edit, Option<&str>); 11] = [
+        // decompress indexed `nodes[0]` mutably where there was no `nodes`.
+        ("no nodes", Compress::MeshoptV1, |j| drop(j.as_object_mut().unwrap().remove("nodes")), Some("nodes[0]")),
+        // meshoptimizer asserts whole triangles: an abort, not an error.
+        (
+            "partial triangles",
+            Compress::Meshopt,
+            |j| edit_stream(j, "TRIANGLES", |m| m["count"] = json!(m["count"].as_u64().unwrap() - 1)),
+            Some("whole triangles"),
+        ),
+        // The decoder allocated what the file claimed before reading it.
+        (
+            "2^40 vertices claimed",
+            Compress::MeshoptV1,
+            |j| edit_stream(j, "ATTRIBUTES", |m| m["count"] = json!(1u64 << 40)),
+            Some("cannot come from"),
+        ),
+        // The `gltf` crate looks the POSITION accessor up before it checks the index.
+        (
+            "POSITION past the accessors",
+            Compress::None,
+            |j| j["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(99),
+            Some("refers to 99"),
+        ),
+        // ... and unwraps an embedded image's MIME type ...
+        (
+            "image without mimeType",
+            Compress::None,
+            |j| drop(j["images"][0].as_object_mut().unwrap().remove("mimeType")),
+            Some("no mimeType"),
+        ),
+        // ... and its URI where it has no bufferView ...
+        (
+            "image without a source",
+            Compress::None,
+            |j| drop(j["images"][0].as_object_mut().unwrap().remove("bufferView")),
+            Some("neither a bufferView nor a uri"),
+        ),
+        // ... and reaches `unreachable!` for float indices ...
+        (
+            "float indices",
+            Compress::None,
+            |j| j["accessors"][3] = json!({"bufferView": 3, "componentType": 5126, "count": 3636, "type": "SCALAR"}),
+            Some("indices is accessor 3"),
+        ),
+        // ... and asserts each element fits its stride ...
+        (
+            "stride shorter than a vertex",
+            Compress::None,
+            |j| j["bufferViews"][0]["byteStride"] = json!(4),
+            Some("byteStride 4"),
+        ),
+        // ... and counts `count − 1` elements (an overflow in debug builds).
+        ("no vertices", Compress::None, |j| j["accessors"][0]["count"] = json!(0), Some("accessor 0 has no elements")),
+        // A morph target sharing the POSITION accessor: decompress lost
+        // which file accessor its cut copy came from.
+        (
+            "target on the positions",
+            Compress::MeshoptV1,
+            |j| j["meshes"][0]["primitives"][0]["targets"][0]["POSITION"] = json!(0),
+            None,
+        ),
+        // A morph target without POSITION: decompress expected one.
+        (
+            "target without POSITION",
+            Compress::MeshoptV1,
+            |j| j["meshes"][0]["primitives"][0]["targets"][0] = json!({"NORMAL": 3}),
+            Some("no POSITION"),
+        ),
+    ];
+    for (name, compress, edit, says) in cases {
+        if !built.iter().any(|b| b.0 == compress) {
+            let out = tmp.path().join(format!("{compress:?}"));
+            let cfg = Config { max_error_m: 0.5, compress, ..Config::default() };
+            build(&with_config(&fixture("kattegat_crop_u8.png"), &out, cfg)).unwrap();
+            built.push((compress, out));
+        }
+        let out = &built.iter().find(|b| b.0 == compress).unwrap().1;
+        let p = tmp.path().join(format!("{name}.glb"));
+        std::fs::copy(out.join("tiles/0/0/0.glb"), &p).unwrap();
+        rewrite_glb(&p, |j, _| edit(j));
+        match (read_chunk(&p), says) {
+            (Err(e), Some(says)) => {
+                let e = e.to_string();
+                assert!(e.contains(name) && e.contains(says), "{name}: {e}");
+            }
+            (Ok(_), None) => {}
+            (r, _) => panic!("{name}: {:?}", r.map(|_| "read")),
+        }
+    }
+}
+
+/// Applies `edit` to the meshopt extension of the bufferView of `mode`.
+fn edit_stream(j: &mut Value, mode: &str, edit: impl Fn(&mut Value)) {
+    for view in j["bufferViews"].as_array_mut().unwrap() {
+        let extensions = view["extensions"].as_object_mut().into_iter().flat_map(|e| e.values_mut());
+        if let Some(m) = extensions.into_iter().find(|m| m["mode"] == mode) {
+            return edit(m);
+        }
+    }
+    panic!("no {mode} stream");
 }
 
 // ------------------------------------------------------------ the command line

@@ -72,3 +72,18 @@ pub fn load_texture_bytes(data: &[u8]) {
     assert!(finite, "DEM-to-pixel map {:?}", source.to_px);
     assert!(source.texel_m.iter().all(|t| t.is_finite() && *t > 0.0), "texel size {:?}", source.texel_m);
 }
+
+/// Reads `data` as a chunk file (`.glb`, plain or compressed) as `verify`,
+/// `inspect` and the viewer's decoder do, and checks what `verify` relies
+/// on when it succeeds.
+pub fn read_chunk_bytes(data: &[u8]) {
+    let Ok(chunk) = terrachunk::verify::parse_chunk(std::path::Path::new("fuzz.glb"), data) else {
+        return;
+    };
+    for prim in std::iter::once(&chunk.surface).chain(chunk.skirt.as_ref()) {
+        let n = prim.positions.len();
+        assert_eq!(prim.morph_dy.len(), n, "a morph delta per vertex");
+        assert!(prim.triangles.iter().flatten().all(|&i| (i as usize) < n), "an index past {n} vertices");
+        assert!(prim.uv.is_empty() || prim.uv.len() == n, "{} texture coordinates for {n} vertices", prim.uv.len());
+    }
+}

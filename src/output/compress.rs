@@ -968,6 +968,13 @@ fn decode_vertices(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, 
     }
 }
 
+/// How many times its own size a meshopt stream can decode to, with room
+/// to spare: a vertex stream of zeros, the densest there is, decodes to
+/// 1 023 times its size with codec version 1 (each byte lane of a
+/// 256-vertex block costs two control bits), an index stream takes at least
+/// a byte per triangle.
+const MAX_EXPANSION: usize = 2048;
+
 /// A meshopt-compressed buffer view's bytes, decoded by the codec its
 /// `mode` names but not yet by its `filter`: `ext` is the view's
 /// `EXT_meshopt_compression` or `KHR_meshopt_compression` object (`count`,
@@ -976,7 +983,16 @@ fn decode_vertices(data: &[u8], count: usize, stride: usize) -> Result<Vec<u8>, 
 pub fn decode_stream(ext: &Value, data: &[u8]) -> Result<Vec<u8>, String> {
     let num = |x: &Value| x.as_u64().map_or(0, |n| n as usize);
     let (count, stride) = (num(&ext["count"]), num(&ext["byteStride"]));
+    // The decoder allocates what the file claims before it reads a byte: a
+    // claim no stream of this size can hold is refused first.
+    if count.checked_mul(stride).is_none_or(|n| n > MAX_EXPANSION.saturating_mul(data.len()).saturating_add(65_536)) {
+        return Err(format!("{count} elements of {stride} bytes cannot come from {} compressed bytes", data.len()));
+    }
     let bad = |e: meshopt::Error| format!("meshopt cannot decode it: {e:?}");
+    // meshoptimizer asserts this (an abort, not an error).
+    if ext["mode"] == "TRIANGLES" && !count.is_multiple_of(3) {
+        return Err(format!("{count} indices are not whole triangles"));
+    }
     match (ext["mode"].as_str(), stride) {
         (Some("ATTRIBUTES"), _) => {
             decode_vertices(data, count, stride).map_err(|e| format!("meshopt cannot decode it: {e}"))
@@ -1039,7 +1055,20 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
     let mut out = Sink::default();
     let mut cache: Vec<Option<Vec<u8>>> = vec![None; json["bufferViews"].as_array().map_or(0, Vec::len)];
     let accessors: Vec<Value> = json["accessors"].as_array().cloned().unwrap_or_default();
+    for prim in primitives(&json) {
+        let attributes = prim["attributes"].as_object().into_iter().flat_map(|o| o.values());
+        let targets =
+            prim["targets"].as_array().into_iter().flatten().flat_map(|t| t.as_object()).flat_map(|o| o.values());
+        for a in attributes.chain(targets).chain(prim.get("indices")) {
+            if a.as_u64().is_none_or(|a| a as usize >= accessors.len()) {
+                return Err(format!("a primitive refers to accessor {a}, of {}", accessors.len()));
+            }
+        }
+    }
     let mut plain: Vec<(Vec<f64>, usize)> = Vec::with_capacity(accessors.len());
+    // The file's accessor each of `plain` comes from (itself, or the one a
+    // primitive's own copy was cut from).
+    let mut source: Vec<usize> = (0..accessors.len()).collect();
     for (a, acc) in accessors.iter().enumerate() {
         let (mut values, n) = read_accessor(&json, acc, bin, &mut cache).map_err(|e| format!("accessor {a}: {e}"))?;
         if positions.contains(&(a as u64)) && n == 3 {
@@ -1067,7 +1096,13 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
         }
         let i = prim["indices"].as_u64().ok_or("a primitive sharing vertices has no indices")? as usize;
         let idx = plain.get(i).ok_or_else(|| format!("accessor {i} does not exist"))?.0.clone();
-        let count = own.clone().map(|a| plain.get(a as usize).map_or(0, |(v, n)| v.len() / n)).min().unwrap_or(0);
+        let targets = prim["targets"].as_array().into_iter().flatten().flat_map(|t| t["POSITION"].as_u64());
+        let count = own
+            .clone()
+            .chain(targets.clone())
+            .map(|a| plain.get(a as usize).map_or(0, |(v, n)| v.len() / n))
+            .min()
+            .unwrap_or(0);
         let mut remap = vec![None; count];
         for &v in &idx {
             *remap.get_mut(v as usize).ok_or("an index past the vertices")? = Some(0.0);
@@ -1079,23 +1114,24 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
             next += 1.0;
         }
         let mut map = BTreeMap::new();
-        let targets = prim["targets"].as_array().into_iter().flatten().flat_map(|t| t["POSITION"].as_u64());
         for a in own.chain(targets) {
-            let (values, n) = &plain[a as usize];
+            let (values, n) = plain.get(a as usize).ok_or_else(|| format!("accessor {a} does not exist"))?;
             let vals = kept.iter().flat_map(|&v| values[v * n..(v + 1) * n].iter().copied()).collect();
             map.insert(a, plain.len());
             plain.push((vals, *n));
+            source.push(a as usize);
         }
         map.insert(i as u64, plain.len());
         plain.push((idx.iter().map(|&v| remap[v as usize].expect("marked above")).collect(), 1));
+        source.push(i);
         primitive_accessors.push(Some(map));
     }
     for (a, (values, n)) in plain.iter().enumerate() {
-        let acc = accessors.get(a).unwrap_or_else(|| &accessors[source_of(a, &primitive_accessors)]);
+        let acc = &accessors[source[a]];
         align4(&mut out.bin);
         let offset = out.bin.len();
         let count = values.len() / n.max(&1);
-        if indices.contains(&(source_of(a, &primitive_accessors) as u64)) {
+        if indices.contains(&(source[a] as u64)) {
             for v in values {
                 out.bin.extend_from_slice(&(*v as u32).to_le_bytes());
             }
@@ -1105,7 +1141,7 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
             );
             continue;
         }
-        let scaled = positions.contains(&(source_of(a, &primitive_accessors) as u64)) && *n == 3;
+        let scaled = positions.contains(&(source[a] as u64)) && *n == 3;
         let f: Vec<f32> = values.iter().map(|&v| v as f32).collect();
         for v in &f {
             out.bin.extend_from_slice(&v.to_le_bytes());
@@ -1126,8 +1162,10 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
         for slot in prim["attributes"].as_object_mut().into_iter().flat_map(|o| o.values_mut()) {
             *slot = map[&slot.as_u64().expect("read above")].into();
         }
-        for t in prim["targets"].as_array_mut().into_iter().flatten() {
-            t["POSITION"] = map[&t["POSITION"].as_u64().expect("read above")].into();
+        for t in prim["targets"].as_array_mut().into_iter().flatten().filter_map(Value::as_object_mut) {
+            if let Some(slot) = t.get_mut("POSITION") {
+                *slot = map[&slot.as_u64().expect("checked above")].into();
+            }
         }
         prim["indices"] = map[&prim["indices"].as_u64().expect("read above")].into();
     }
@@ -1144,7 +1182,7 @@ pub fn decompress(bytes: &[u8]) -> Result<Option<Decoded>, String> {
     let root = json.as_object_mut().expect("a glTF document is an object");
     root.remove("extensionsUsed");
     root.remove("extensionsRequired");
-    if let Some(node) = json["nodes"][0].as_object_mut() {
+    if let Some(node) = json.get_mut("nodes").and_then(|n| n.get_mut(0)).and_then(Value::as_object_mut) {
         node.remove("scale");
     }
     json["accessors"] = out.accessors.into();
@@ -1170,12 +1208,6 @@ fn primitive_mut(json: &mut Value, p: usize) -> &mut Value {
         .expect("counted by primitives()")
 }
 
-/// The file's accessor a decoded accessor `a` was cut from (itself where it
-/// is one of the file's).
-fn source_of(a: usize, cut: &[Option<BTreeMap<u64, usize>>]) -> usize {
-    cut.iter().flatten().flat_map(|m| m.iter()).find(|&(_, &new)| new == a).map_or(a, |(&old, _)| old as usize)
-}
-
 /// The bytes of bufferView `v`, decoded if meshopt compressed them.
 fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec<u8>>]) -> Result<&'c [u8], String> {
     if v >= cache.len() {
@@ -1185,7 +1217,9 @@ fn view_bytes<'c>(json: &Value, v: usize, bin: &[u8], cache: &'c mut [Option<Vec
         let view = &json["bufferViews"][v];
         let num = |x: &Value| x.as_u64().map(|n| n as usize);
         let slice = |off: usize, len: usize| {
-            bin.get(off..off + len).ok_or_else(|| format!("bufferView {v} lies outside the binary chunk"))
+            off.checked_add(len)
+                .and_then(|end| bin.get(off..end))
+                .ok_or_else(|| format!("bufferView {v} lies outside the binary chunk"))
         };
         let bytes = match MESHOPT_EXTENSIONS.iter().find_map(|e| view["extensions"].get(e)) {
             Some(m) => {
@@ -1255,9 +1289,16 @@ fn read_accessor(
     let normalized = acc["normalized"].as_bool().unwrap_or(false);
     let v = acc["bufferView"].as_u64().ok_or("no bufferView")? as usize;
     let stride = json["bufferViews"][v]["byteStride"].as_u64().map_or(n * size, |s| s as usize);
+    if stride < n * size {
+        return Err(format!("byteStride {stride} is shorter than its {}-byte elements", n * size));
+    }
     let offset = acc["byteOffset"].as_u64().unwrap_or(0) as usize;
     let data = view_bytes(json, v, bin, cache)?;
-    if count > 0 && offset + (count - 1) * stride + n * size > data.len() {
+    let end = (count.max(1) - 1)
+        .checked_mul(stride)
+        .and_then(|e| e.checked_add(offset))
+        .and_then(|e| e.checked_add(n * size));
+    if count > 0 && end.is_none_or(|e| e > data.len()) {
         return Err("reaches past its bufferView".into());
     }
     let mut out = Vec::with_capacity(count * n);

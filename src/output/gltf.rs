@@ -449,3 +449,148 @@ pub(crate) fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
     }
     out
 }
+
+// ------------------------------------------------------------------ reading
+
+/// A plain (uncompressed) .glb as the `gltf` crate imports it: the document,
+/// its buffers and its decoded images.
+pub type Imported = (::gltf::Document, Vec<::gltf::buffer::Data>, Vec<::gltf::image::Data>);
+
+/// Imports a plain .glb with the `gltf` crate once [`references_hold`] has
+/// checked what that crate (1.4) trusts before its own validation runs: a
+/// damaged file is an error, never a panic in `verify`, `inspect` or the
+/// viewer.
+pub fn import(bytes: &[u8]) -> Result<Imported, String> {
+    let glb = ::gltf::Glb::from_slice(bytes).map_err(|e| format!("not a GLB: {e}"))?;
+    let json: Value = serde_json::from_slice(&glb.json).map_err(|e| format!("bad JSON: {e}"))?;
+    references_hold(&json, glb.bin.as_deref().map_or(0, <[u8]>::len))?;
+    ::gltf::import_slice(bytes).map_err(|e| format!("bad glTF: {e}"))
+}
+
+/// Whether every reference the `gltf` crate follows unchecked holds, where
+/// a damaged file made it panic instead of returning an error: a
+/// primitive's accessor indices (its validation looks up the POSITION
+/// accessor before it checks the index), an image's source and an
+/// embedded image's MIME type,
+/// and each accessor's extent within its bufferView, each bufferView's
+/// within its buffer and the buffer's within the binary chunk (its readers
+/// compute these ends unchecked). Sparse accessors, which terrachunk never
+/// writes, are refused rather than checked. `bin_len`: the binary chunk's
+/// length.
+pub fn references_hold(json: &Value, bin_len: usize) -> Result<(), String> {
+    let list = |key: &str| json[key].as_array().map_or(&[][..], Vec::as_slice);
+    let num = |v: &Value| v.as_u64().and_then(|n| usize::try_from(n).ok());
+    let (buffers, views, accessors) = (list("buffers"), list("bufferViews"), list("accessors"));
+    let index = |v: &Value, len: usize, what: &str| match num(v) {
+        Some(i) if i < len => Ok(i),
+        _ => Err(format!("{what} refers to {v}, of {len}")),
+    };
+    let mut buffer_len = Vec::with_capacity(buffers.len());
+    for (b, buffer) in buffers.iter().enumerate() {
+        let len = num(&buffer["byteLength"]).ok_or_else(|| format!("buffer {b} has no byteLength"))?;
+        if buffer.get("uri").is_none() && len > bin_len {
+            return Err(format!("buffer {b} claims {len} bytes, the binary chunk holds {bin_len}"));
+        }
+        buffer_len.push(len);
+    }
+    for (v, view) in views.iter().enumerate() {
+        let b = index(&view["buffer"], buffers.len(), &format!("bufferView {v}"))?;
+        let end = num(&view["byteLength"]).zip(num(&view.get("byteOffset").cloned().unwrap_or(0.into())));
+        if end.and_then(|(len, off)| off.checked_add(len)).is_none_or(|e| e > buffer_len[b]) {
+            return Err(format!("bufferView {v} lies outside buffer {b}"));
+        }
+    }
+    for (a, acc) in accessors.iter().enumerate() {
+        let what = format!("accessor {a}");
+        if acc.get("sparse").is_some() {
+            return Err(format!("{what} is sparse, which terrachunk never writes"));
+        }
+        let count = num(&acc["count"]).filter(|&c| c > 0).ok_or_else(|| format!("{what} has no elements"))?;
+        let Some(v) = acc.get("bufferView") else { continue };
+        let view = &views[index(v, views.len(), &what)?];
+        let components = match acc["type"].as_str() {
+            Some("SCALAR") => 1,
+            Some("VEC2") => 2,
+            Some("VEC3") => 3,
+            Some("VEC4" | "MAT2") => 4,
+            Some("MAT3") => 9,
+            Some("MAT4") => 16,
+            _ => return Err(format!("{what} has no valid type")),
+        };
+        let size = match acc["componentType"].as_u64() {
+            Some(5120 | 5121) => 1,
+            Some(5122 | 5123) => 2,
+            Some(5125 | 5126) => 4,
+            _ => return Err(format!("{what} has no valid componentType")),
+        };
+        let element = components * size;
+        let stride = view.get("byteStride").map_or(Some(element), num);
+        if stride.is_none_or(|s| s < element) {
+            return Err(format!(
+                "{what}: byteStride {} is shorter than its {element}-byte elements",
+                view["byteStride"]
+            ));
+        }
+        let offset = acc.get("byteOffset").map_or(Some(0), num);
+        let end = stride
+            .zip(offset)
+            .and_then(|(s, o)| (count - 1).checked_mul(s).and_then(|e| e.checked_add(o)))
+            .and_then(|e| e.checked_add(element));
+        if end.is_none_or(|e| Some(e) > num(&view["byteLength"])) {
+            return Err(format!("{what} reaches past its bufferView"));
+        }
+    }
+    for (m, mesh) in list("meshes").iter().enumerate() {
+        for (p, prim) in mesh["primitives"].as_array().into_iter().flatten().enumerate() {
+            let what = format!("mesh {m} primitive {p}");
+            let attributes = prim["attributes"].as_object().into_iter().flatten();
+            let targets = prim["targets"].as_array().into_iter().flatten();
+            let indices = prim.get("indices").map(|i| ("indices", i));
+            let all = attributes
+                .map(|(k, v)| (k.as_str(), v))
+                .chain(targets.filter_map(Value::as_object).flatten().map(|(k, v)| (k.as_str(), v)))
+                .chain(indices);
+            for (semantic, a) in all {
+                let acc = &accessors[index(a, accessors.len(), &what)?];
+                if !semantic_type_holds(semantic, acc["type"].as_str(), acc["componentType"].as_u64()) {
+                    return Err(format!(
+                        "{what}: {semantic} is accessor {a} of type {} {}",
+                        acc["type"], acc["componentType"]
+                    ));
+                }
+            }
+        }
+    }
+    for (i, image) in list("images").iter().enumerate() {
+        match image.get("bufferView") {
+            Some(v) => {
+                index(v, views.len(), &format!("image {i}"))?;
+                if !image["mimeType"].is_string() {
+                    return Err(format!("image {i} lies in a bufferView and has no mimeType"));
+                }
+            }
+            None if !image["uri"].is_string() => return Err(format!("image {i} has neither a bufferView nor a uri")),
+            None => {}
+        }
+    }
+    Ok(())
+}
+
+/// Whether an accessor of `kind` and `component` type may hold `semantic`
+/// (an attribute, a morph target's attribute or "indices") in plain glTF
+/// 2.0: the `gltf` crate's readers take the spec's types for granted.
+/// Attributes it has no reader for pass.
+fn semantic_type_holds(semantic: &str, kind: Option<&str>, component: Option<u64>) -> bool {
+    let (kind, c) = (kind.unwrap_or(""), component.unwrap_or(0));
+    let base = semantic.split('_').next().unwrap_or(semantic);
+    match base {
+        "POSITION" | "NORMAL" => kind == "VEC3" && c == 5126,
+        "TANGENT" => matches!(kind, "VEC3" | "VEC4") && c == 5126,
+        "TEXCOORD" => kind == "VEC2" && matches!(c, 5121 | 5123 | 5126),
+        "COLOR" => matches!(kind, "VEC3" | "VEC4") && matches!(c, 5121 | 5123 | 5126),
+        "JOINTS" => kind == "VEC4" && matches!(c, 5121 | 5123),
+        "WEIGHTS" => kind == "VEC4" && matches!(c, 5121 | 5123 | 5126),
+        "indices" => kind == "SCALAR" && matches!(c, 5121 | 5123 | 5125),
+        _ => true,
+    }
+}

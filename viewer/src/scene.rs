@@ -120,7 +120,7 @@ pub fn load_chunk(path: &Path) -> Result<ChunkMesh> {
 pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
     let plain = terrachunk::output::compress::decompress(bytes).map_err(anyhow::Error::msg)?;
     let bytes = plain.as_ref().map_or(bytes, |d| d.glb.as_slice());
-    let (doc, buffers, images) = gltf::import_slice(bytes)?;
+    let (doc, buffers, images) = terrachunk::output::gltf::import(bytes).map_err(anyhow::Error::msg)?;
     let Some(node) = doc.nodes().next() else { bail!("no node") };
     let Some(mesh) = node.mesh() else { bail!("the node has no mesh") };
     // f64 translation from the JSON itself: `gltf` hands it over as f32.
@@ -162,9 +162,13 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
             out.vertices.push(Vertex { pos, normal, uv, morph_dy, role });
         }
         let idx: Vec<u32> = match reader.read_indices() {
-            Some(i) => i.into_u32().map(|i| i + base).collect(),
-            None => (base..base + pos.len() as u32).collect(),
+            Some(i) => i.into_u32().collect(),
+            None => (0..pos.len() as u32).collect(),
         };
+        if let Some(&i) = idx.iter().find(|&&i| i as usize >= pos.len()) {
+            bail!("index {i} past the primitive's {} vertices", pos.len());
+        }
+        let idx: Vec<u32> = idx.into_iter().map(|i| i + base).collect();
         out.indices.extend_from_slice(&idx);
         if !skirt {
             out.surface_indices = out.indices.len() as u32;
