@@ -469,7 +469,8 @@ fn damaged_chunks_are_errors_never_panics() {
     let odd = [json!(0), json!(-1), json!(3), json!(65535), json!(1u64 << 40), json!(1e300), json!(2.5), json!("x")];
     for compress in [Compress::None, Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1] {
         let out = tmp.path().join(format!("{compress:?}"));
-        let cfg = Config { max_error_m: 0.5, compress, ..Config::default() };
+        // 32-cell leaves: a root and four children, whose morph targets move.
+        let cfg = Config { max_error_m: 0.5, compress, leaf_cells: Some(32), ..Config::default() };
         build(&with_config(&fixture("fuji_crop_terrainrgb.png"), &out, cfg)).unwrap();
         let chunks: Vec<_> =
             all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb")).collect();
