@@ -194,14 +194,18 @@ pub fn parse_chunk(path: &Path, bytes: &[u8]) -> Result<ChunkFile, VerifyError> 
     let node = &json["nodes"][0];
     let tc = &node["extras"]["terrachunk"];
     let num = |v: &Value, what: &str| v.as_f64().ok_or_else(|| file_err(path, format!("node extras lack {what}")));
-    let key = ChunkKey {
-        level: num(&tc["level"], "level")? as u32,
-        x: num(&tc["x"], "x")? as u32,
-        y: num(&tc["y"], "y")? as u32,
+    let whole = |v: &Value, what: &str| {
+        v.as_u64()
+            .and_then(|n| u32::try_from(n).ok())
+            .ok_or_else(|| file_err(path, format!("node extras lack {what} as a whole number under 2³²")))
     };
+    let key = ChunkKey { level: whole(&tc["level"], "level")?, x: whole(&tc["x"], "x")?, y: whole(&tc["y"], "y")? };
     let fp = &tc["footprint"];
     let footprint =
-        [num(&fp["x0"], "x0")?, num(&fp["x1"], "x1")?, num(&fp["z0"], "z0")?, num(&fp["z1"], "z1")?].map(|v| v as u32);
+        [whole(&fp["x0"], "x0")?, whole(&fp["x1"], "x1")?, whole(&fp["z0"], "z0")?, whole(&fp["z1"], "z1")?];
+    if footprint[0] >= footprint[1] || footprint[2] >= footprint[3] {
+        return Err(file_err(path, format!("node extras hold an empty footprint {footprint:?}")));
+    }
     let t = &node["translation"];
     let translation = [num(&t[0], "translation")?, num(&t[1], "translation")?, num(&t[2], "translation")?];
     let mesh = doc.meshes().next().ok_or_else(|| file_err(path, "no mesh"))?;
