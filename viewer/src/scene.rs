@@ -309,4 +309,37 @@ mod tests {
             }
         }
     }
+
+    /// A damaged chunk whose triangles index past its vertices is an error
+    /// naming the file: its indices once went to the GPU as they were.
+    #[test]
+    fn a_chunk_indexing_past_its_vertices_is_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
+        let dir = tmp.path().join("out");
+        build(&BuildOptions {
+            inputs: vec![dem],
+            out: dir.clone(),
+            force: false,
+            config: Config { max_error_m: 0.5, ..Config::default() },
+            texture: TextureSource::None,
+            progress: false,
+        })
+        .unwrap();
+        let path = dir.join("tiles/0/0/0.glb");
+        assert!(load_chunk(&path).is_ok());
+        // The surface's first index (u16, at the start of its bufferView) set past the vertices.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let glb = gltf::Glb::from_slice(&bytes).unwrap();
+        let json: serde_json::Value = serde_json::from_slice(&glb.json).unwrap();
+        let acc = &json["accessors"][json["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize];
+        assert_eq!(acc["componentType"], 5123, "u16 indices");
+        let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+        let at = 20 + glb.json.len() + 8 + view["byteOffset"].as_u64().unwrap_or(0) as usize;
+        bytes[at..at + 2].copy_from_slice(&60_000u16.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let Err(e) = load_chunk(&path) else { panic!("a chunk indexing past its vertices loaded") };
+        let e = format!("{e:#}");
+        assert!(e.contains("0.glb") && e.contains("index 60000 past"), "{e}");
+    }
 }
