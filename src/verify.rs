@@ -187,7 +187,7 @@ pub fn read_chunk(path: &Path) -> Result<ChunkFile, VerifyError> {
 pub fn parse_chunk(path: &Path, bytes: &[u8]) -> Result<ChunkFile, VerifyError> {
     let decoded = crate::output::compress::decompress(bytes).map_err(|e| file_err(path, e))?;
     let quantization_m = decoded.as_ref().map(|d| d.step_m);
-    let bytes = decoded.map_or_else(|| bytes.to_vec(), |d| d.glb);
+    let bytes: std::borrow::Cow<[u8]> = decoded.map_or(bytes.into(), |d| d.glb.into());
     let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
     let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
     let (doc, buffers, images) = crate::output::gltf::import(&bytes).map_err(|e| file_err(path, e))?;

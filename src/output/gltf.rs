@@ -470,13 +470,13 @@ pub fn import(bytes: &[u8]) -> Result<Imported, String> {
 /// Whether every reference the `gltf` crate follows unchecked holds, where
 /// a damaged file made it panic instead of returning an error: a
 /// primitive's accessor indices (its validation looks up the POSITION
-/// accessor before it checks the index), an image's source and an
-/// embedded image's MIME type,
-/// and each accessor's extent within its bufferView, each bufferView's
-/// within its buffer and the buffer's within the binary chunk (its readers
-/// compute these ends unchecked). Sparse accessors, which terrachunk never
-/// writes, are refused rather than checked. `bin_len`: the binary chunk's
-/// length.
+/// accessor before it checks the index) and their types (its readers reach
+/// `unreachable!` on float indices), an image's source and an embedded
+/// image's MIME type (unwrapped), and each accessor's extent within its
+/// bufferView, each bufferView's within its buffer and the buffer's within
+/// the binary chunk (its readers compute these ends unchecked). Sparse
+/// accessors, which terrachunk never writes, are refused rather than
+/// checked. `bin_len`: the binary chunk's length.
 pub fn references_hold(json: &Value, bin_len: usize) -> Result<(), String> {
     let list = |key: &str| json[key].as_array().map_or(&[][..], Vec::as_slice);
     let num = |v: &Value| v.as_u64().and_then(|n| usize::try_from(n).ok());
@@ -495,7 +495,7 @@ pub fn references_hold(json: &Value, bin_len: usize) -> Result<(), String> {
     }
     for (v, view) in views.iter().enumerate() {
         let b = index(&view["buffer"], buffers.len(), &format!("bufferView {v}"))?;
-        let end = num(&view["byteLength"]).zip(num(&view.get("byteOffset").cloned().unwrap_or(0.into())));
+        let end = num(&view["byteLength"]).zip(view.get("byteOffset").map_or(Some(0), num));
         if end.and_then(|(len, off)| off.checked_add(len)).is_none_or(|e| e > buffer_len[b]) {
             return Err(format!("bufferView {v} lies outside buffer {b}"));
         }
