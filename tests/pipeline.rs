@@ -653,6 +653,12 @@ fn chunk_damage_that_once_panicked_is_an_error() {
             (r, _) => panic!("{name}: {:?}", r.map(|_| "read")),
         }
     }
+    // What the command line makes of one: `inspect` exits 2 naming the file.
+    let p = tmp.path().join("partial triangles.glb");
+    let o = cli(&["inspect", p.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("partial triangles.glb") && err.contains("whole triangles"), "{err}");
 }
 
 /// Applies `edit` to the meshopt extension of the bufferView of `mode`.
