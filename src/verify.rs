@@ -44,6 +44,7 @@ use crate::dem::{self, LoadOptions};
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::morph::{SurfaceLocator, barycentric, points_near_triangle};
+use crate::output::gltf::{Imported, import};
 use crate::output::tileset::{TileExtras, TilesetExtras};
 use crate::quadtree::ChunkKey;
 use crate::texture::{Limit, TextureExtras};
@@ -188,9 +189,7 @@ pub fn parse_chunk(path: &Path, bytes: &[u8]) -> Result<ChunkFile, VerifyError> 
     let decoded = crate::output::compress::decompress(bytes).map_err(|e| file_err(path, e))?;
     let quantization_m = decoded.as_ref().map(|d| d.step_m);
     let bytes: std::borrow::Cow<[u8]> = decoded.map_or(bytes.into(), |d| d.glb.into());
-    let glb = gltf::Glb::from_slice(&bytes).map_err(|e| file_err(path, format!("not a GLB: {e}")))?;
-    let json: Value = serde_json::from_slice(&glb.json).map_err(|e| file_err(path, format!("bad JSON: {e}")))?;
-    let (doc, buffers, images) = crate::output::gltf::import(&bytes).map_err(|e| file_err(path, e))?;
+    let Imported { doc, buffers, images, json } = import(&bytes).map_err(|e| file_err(path, e))?;
     let node = &json["nodes"][0];
     let tc = &node["extras"]["terrachunk"];
     let num = |v: &Value, what: &str| v.as_f64().ok_or_else(|| file_err(path, format!("node extras lack {what}")));

@@ -466,7 +466,6 @@ fn damaged_chunks_are_errors_never_panics() {
     let tmp = tempfile::tempdir().unwrap();
     let seeds = std::env::var_os("TERRACHUNK_CHUNK_SEEDS").map(PathBuf::from);
     let mut mangler = Mangler::new(0x9e37_79b9_7f4a_7c15);
-    let odd = [json!(0), json!(-1), json!(3), json!(65535), json!(1u64 << 40), json!(1e300), json!(2.5), json!("x")];
     for compress in [Compress::None, Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1] {
         let out = tmp.path().join(format!("{compress:?}"));
         // 32-cell leaves: a root and four children, whose morph targets move.
@@ -490,15 +489,23 @@ fn damaged_chunks_are_errors_never_panics() {
             std::fs::write(&p, mangler.mangle(bytes, k)).unwrap();
             read_names_it(&format!("mangled copy {k}"));
             std::fs::write(&p, bytes).unwrap();
-            let mut at = String::new();
-            rewrite_glb(&p, |j, _| {
-                let numbers = number_pointers(j, String::new());
-                at = numbers[(k * 7919) % numbers.len()].clone();
-                *j.pointer_mut(&at).unwrap() = odd[k % odd.len()].clone();
-            });
-            read_names_it(&format!("{at} = {}", odd[k % odd.len()]));
+            let mut set = String::new();
+            rewrite_glb(&p, |j, _| set = set_odd_number(j, k * 7919, k));
+            read_names_it(&set);
         }
     }
+}
+
+/// Sets number `pick` (modulo their count) of `j` to odd value `value`
+/// (modulo theirs): one a damaged file might hold. Says which, and to what.
+fn set_odd_number(j: &mut Value, pick: usize, value: usize) -> String {
+    let odd = [json!(0), json!(-1), json!(3), json!(65535), json!(1u64 << 40), json!(1e300), json!(2.5), json!("x")];
+    let numbers = number_pointers(j, String::new());
+    let at = &numbers[pick % numbers.len()];
+    let new = odd[value % odd.len()].clone();
+    let said = format!("{at} = {new}");
+    *j.pointer_mut(at).unwrap() = new;
+    said
 }
 
 /// The JSON pointers of every number in `v`.
@@ -525,17 +532,11 @@ fn verify_survives_a_number_changed_in_any_file() {
     build(&with_config(&fixture("fuji_crop_terrainrgb.png"), &out, cfg)).unwrap();
     let files: Vec<_> =
         all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb" || e == "json")).collect();
-    let odd = [json!(0), json!(-1), json!(3), json!(65535), json!(1u64 << 40), json!(1e300), json!(2.5), json!("x")];
     for k in 0..mangle_rounds() {
         let (rel, bytes) = &files[k % files.len()];
         let p = out.join(rel);
-        let new = odd[(k / files.len()) % odd.len()].clone();
-        let mut at = String::new();
-        let mut set = |j: &mut Value| {
-            let numbers = number_pointers(j, String::new());
-            at = numbers[(k * 7919) % numbers.len()].clone();
-            *j.pointer_mut(&at).unwrap() = new.clone();
-        };
+        let mut said = String::new();
+        let mut set = |j: &mut Value| said = set_odd_number(j, k * 7919, k / files.len());
         if rel.extension().unwrap() == "json" {
             let mut j: Value = serde_json::from_slice(bytes).unwrap();
             set(&mut j);
@@ -545,11 +546,7 @@ fn verify_survives_a_number_changed_in_any_file() {
         }
         if let Err(e) = verify(&out, None) {
             let e = e.to_string();
-            assert!(
-                e.contains(&*rel.to_string_lossy()) || e.contains("fuji_crop"),
-                "{} {at} = {new}: {e}",
-                rel.display()
-            );
+            assert!(e.contains(&*rel.to_string_lossy()) || e.contains("fuji_crop"), "{} {said}: {e}", rel.display());
         }
         std::fs::write(&p, bytes).unwrap();
     }

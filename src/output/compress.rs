@@ -1271,20 +1271,11 @@ fn read_accessor(
     bin: &[u8],
     cache: &mut [Option<Vec<u8>>],
 ) -> Result<(Vec<f64>, usize), String> {
-    let n = match acc["type"].as_str() {
-        Some("SCALAR") => 1,
-        Some("VEC2") => 2,
-        Some("VEC3") => 3,
-        Some("VEC4") => 4,
-        other => return Err(format!("type {other:?}")),
-    };
+    let (n, size) = super::gltf::accessor_layout(acc)?;
+    if n > 4 {
+        return Err(format!("type {}", acc["type"]));
+    }
     let ctype = acc["componentType"].as_u64().unwrap_or(0);
-    let size = match ctype {
-        5120 | 5121 => 1,
-        5122 | 5123 => 2,
-        5125 | 5126 => 4,
-        other => return Err(format!("componentType {other}")),
-    };
     let count = acc["count"].as_u64().ok_or("no count")? as usize;
     let normalized = acc["normalized"].as_bool().unwrap_or(false);
     let v = acc["bufferView"].as_u64().ok_or("no bufferView")? as usize;

@@ -452,9 +452,19 @@ pub(crate) fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
 
 // ------------------------------------------------------------------ reading
 
-/// A plain (uncompressed) .glb as the `gltf` crate imports it: the document,
-/// its buffers and its decoded images.
-pub type Imported = (::gltf::Document, Vec<::gltf::buffer::Data>, Vec<::gltf::image::Data>);
+/// A plain (uncompressed) .glb as the `gltf` crate imports it (the
+/// document, its buffers and its decoded images) and its JSON as
+/// `serde_json` reads it (the node translation in f64, the extras).
+pub struct Imported {
+    /// The validated document.
+    pub doc: ::gltf::Document,
+    /// Its buffers' bytes (the binary chunk).
+    pub buffers: Vec<::gltf::buffer::Data>,
+    /// Its images, decoded.
+    pub images: Vec<::gltf::image::Data>,
+    /// The JSON chunk, parsed once for the checks and kept for the caller.
+    pub json: Value,
+}
 
 /// Imports a plain .glb with the `gltf` crate once [`references_hold`] has
 /// checked what that crate (1.4) trusts before its own validation runs: a
@@ -464,7 +474,29 @@ pub fn import(bytes: &[u8]) -> Result<Imported, String> {
     let glb = ::gltf::Glb::from_slice(bytes).map_err(|e| format!("not a GLB: {e}"))?;
     let json: Value = serde_json::from_slice(&glb.json).map_err(|e| format!("bad JSON: {e}"))?;
     references_hold(&json, glb.bin.as_deref().map_or(0, <[u8]>::len))?;
-    ::gltf::import_slice(bytes).map_err(|e| format!("bad glTF: {e}"))
+    let (doc, buffers, images) = ::gltf::import_slice(bytes).map_err(|e| format!("bad glTF: {e}"))?;
+    Ok(Imported { doc, buffers, images, json })
+}
+
+/// Components per element and bytes per component of an accessor, from
+/// its `type` and `componentType`.
+pub(crate) fn accessor_layout(acc: &Value) -> Result<(usize, usize), String> {
+    let components = match acc["type"].as_str() {
+        Some("SCALAR") => 1,
+        Some("VEC2") => 2,
+        Some("VEC3") => 3,
+        Some("VEC4" | "MAT2") => 4,
+        Some("MAT3") => 9,
+        Some("MAT4") => 16,
+        other => return Err(format!("type {other:?}")),
+    };
+    let size = match acc["componentType"].as_u64() {
+        Some(5120 | 5121) => 1,
+        Some(5122 | 5123) => 2,
+        Some(5125 | 5126) => 4,
+        other => return Err(format!("componentType {other:?}")),
+    };
+    Ok((components, size))
 }
 
 /// Whether every reference the `gltf` crate follows unchecked holds, where
@@ -508,21 +540,7 @@ pub fn references_hold(json: &Value, bin_len: usize) -> Result<(), String> {
         let count = num(&acc["count"]).filter(|&c| c > 0).ok_or_else(|| format!("{what} has no elements"))?;
         let Some(v) = acc.get("bufferView") else { continue };
         let view = &views[index(v, views.len(), &what)?];
-        let components = match acc["type"].as_str() {
-            Some("SCALAR") => 1,
-            Some("VEC2") => 2,
-            Some("VEC3") => 3,
-            Some("VEC4" | "MAT2") => 4,
-            Some("MAT3") => 9,
-            Some("MAT4") => 16,
-            _ => return Err(format!("{what} has no valid type")),
-        };
-        let size = match acc["componentType"].as_u64() {
-            Some(5120 | 5121) => 1,
-            Some(5122 | 5123) => 2,
-            Some(5125 | 5126) => 4,
-            _ => return Err(format!("{what} has no valid componentType")),
-        };
+        let (components, size) = accessor_layout(acc).map_err(|e| format!("{what}: {e}"))?;
         let element = components * size;
         let stride = view.get("byteStride").map_or(Some(element), num);
         if stride.is_none_or(|s| s < element) {

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use terrachunk::lod::LodTree;
+use terrachunk::output::gltf::{Imported, import};
 
 /// A tileset opened for viewing.
 pub struct Tileset {
@@ -120,12 +121,10 @@ pub fn load_chunk(path: &Path) -> Result<ChunkMesh> {
 pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
     let plain = terrachunk::output::compress::decompress(bytes).map_err(anyhow::Error::msg)?;
     let bytes = plain.as_ref().map_or(bytes, |d| d.glb.as_slice());
-    let (doc, buffers, images) = terrachunk::output::gltf::import(bytes).map_err(anyhow::Error::msg)?;
+    let Imported { doc, buffers, images, json } = import(bytes).map_err(anyhow::Error::msg)?;
     let Some(node) = doc.nodes().next() else { bail!("no node") };
     let Some(mesh) = node.mesh() else { bail!("the node has no mesh") };
     // f64 translation from the JSON itself: `gltf` hands it over as f32.
-    let glb = gltf::Glb::from_slice(bytes)?;
-    let json: serde_json::Value = serde_json::from_slice(&glb.json)?;
     let t = &json["nodes"][node.index()]["translation"];
     let translation = [0, 1, 2].map(|a| t[a].as_f64().unwrap_or(0.0));
     let mut out = ChunkMesh {
