@@ -226,6 +226,20 @@ impl<'p> ChunkSpec<'p> {
 
 /// Builds one chunk's TIN (see the module comment for the five steps).
 pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError> {
+    build_chunk_thinning(grid, spec, Thinning::ByParts)
+}
+
+/// Where a chunk filled by parts ([`ChunkSpec::split_insertion`]) is thinned.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Thinning {
+    /// Each part on its own, in parallel: what a build does.
+    ByParts,
+    /// The joined TIN, on one thread: what it did first, which the tests
+    /// hold the other to, collapse for collapse.
+    Joined,
+}
+
+fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Result<ChunkMesh, MeshError> {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let window = Window::new(grid, spec.footprint);
     let grid = &window;
@@ -279,22 +293,24 @@ pub fn build_chunk(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError
             })
         })
         .collect();
-    let (mut tin, mut lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
-        true => insert_by_parts(grid, spec, target, &tin, lines, &start, (mx, mz))?,
+    // Step 5 comes with step 4: a chunk filled by parts thins each part.
+    let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
+        true if thinning == Thinning::Joined && spec.thin => {
+            let (mut tin, mut lines, scans) = insert_by_parts(grid, spec, target, &tin, lines, &start, false)?;
+            let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans };
+            thin(&mut tin, &mut lines, &mut queue);
+            (tin, lines, queue.scans)
+        }
+        true => insert_by_parts(grid, spec, target, &tin, lines, &start, spec.thin)?,
         false => {
             let (mut tin, mut lines) = (tin, lines);
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
             insert_samples(&mut tin, spec, &mut lines, &mut queue, &start, nested, None)?;
+            if spec.thin {
+                thin(&mut tin, &mut lines, &mut queue);
+            }
             (tin, lines, queue.scans)
         }
-    };
-    let scans = match spec.thin {
-        true => {
-            let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans };
-            thin(&mut tin, &mut lines, &mut queue);
-            queue.scans
-        }
-        false => scans,
     };
     Ok(finish(grid, spec, &tin, &lines, &scans, (relief, magnitude)))
 }
@@ -562,6 +578,13 @@ struct PartTin {
 /// so the joined mesh holds the same triangles, numbered part by part.
 /// The vertex limit counts the parts' vertices together: whether it is
 /// passed is decided by their sum, whatever the threads' pace.
+///
+/// Step 5 too, where the chunk is thinned: a free vertex's triangles lie in
+/// one part (the lines are fixed edges), so each part is thinned on its own
+/// with the same collapses, in the same order, as the joined TIN would be
+/// (its stars start at the same half-edges, [`Tin::reset_out`]). Thinned
+/// whole, a level of fewer than four chunks (`--thin all`) kept every other
+/// thread waiting while it thinned.
 fn insert_by_parts(
     grid: &Window,
     spec: &ChunkSpec,
@@ -569,10 +592,11 @@ fn insert_by_parts(
     tin: &Tin,
     mut lines: Lines,
     start: &[Option<TriangleScan>],
-    (mx, mz): (Option<u32>, Option<u32>),
+    thin_parts: bool,
 ) -> Result<(Tin, Lines, Vec<Scan>), MeshError> {
     let nested = spec.parent.is_some();
     let ((x0, x1), (z0, z1)) = spec.footprint;
+    let (mx, mz) = (midpoint((x0, x1)), midpoint((z0, z1)));
     let n0 = tin.pts.len();
     let beyond = |line: Option<u32>, c: f64| line.is_some_and(|m| c > f64::from(m));
     let mut by_part: [Vec<u32>; 4] = Default::default();
@@ -618,6 +642,11 @@ fn insert_by_parts(
             let mut lines = Lines::new(&part.tin, part.footprint, xs, zs);
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
             insert_samples(&mut part.tin, spec, &mut lines, &mut queue, &part.starts, nested, Some((n0, &added)))?;
+            if thin_parts {
+                // Each star starts where the joined TIN's would.
+                part.tin.reset_out();
+                thin(&mut part.tin, &mut lines, &mut queue);
+            }
             part.scans = queue.scans;
             Ok(part)
         })
@@ -630,9 +659,12 @@ fn insert_by_parts(
         let PartTin { tin: sub, scans: sub_scans, whole, .. } = part?;
         let (shared, first_new) = (whole.len(), pts.len());
         pts.extend_from_slice(&sub.pts[shared..]);
-        // The samples the part inserted are vertices of the whole now.
-        for p in &sub.pts[shared..] {
-            lines.mark_vertex(p.z as u32, p.x as u32);
+        // The samples the part inserted and kept are vertices of the whole
+        // now (thinning leaves the ones it took out unconnected).
+        for (v, p) in sub.pts.iter().enumerate().skip(shared) {
+            if sub.is_live(v as u32) {
+                lines.mark_vertex(p.z as u32, p.x as u32);
+            }
         }
         let id: Vec<u32> =
             whole.iter().copied().chain((first_new..first_new + sub.pts.len() - shared).map(|v| v as u32)).collect();
@@ -1760,6 +1792,56 @@ mod tests {
     /// dividing-line vertex, holds no vertex without a triangle, and a child
     /// meshed from a thinned parent still refines it (each child triangle
     /// inside one parent triangle, each morph target on the parent surface).
+    #[test]
+    fn parts_thinned_in_parallel_make_the_collapses_of_the_joined_tin() {
+        // Rough ground with a void, so that thinning also skips stars that
+        // touch nodata; the root filled by parts and thinned, as `--thin
+        // all` builds it, then a child of it filled and thinned by parts.
+        let (w, h) = (129, 97);
+        let mut heights = rough(w, h);
+        for i in 60..75 {
+            for j in 20..41 {
+                heights[i * w + j] = f32::NAN;
+            }
+        }
+        let hf = crate::heightfield::Heightfield::ungeoreferenced(w, h, heights.clone(), "rough".into());
+        let filled = crate::heightfield::void_fill(&hf).expect("a void");
+        let grid = Grid::new(w, h, &heights, Some(&filled));
+        let spec = |key, footprint, delta_m, parent, thin| ChunkSpec {
+            key,
+            footprint,
+            delta_m,
+            parent,
+            dividing_lines: true,
+            split_insertion: true,
+            thin,
+            ..ChunkSpec::unconstrained(footprint, delta_m)
+        };
+        // The same mesh, vertex for vertex and triangle for triangle, so
+        // the same bytes.
+        let same = |a: &ChunkMesh, b: &ChunkMesh| {
+            let (na, nb) = ((a.vertices.len(), a.triangles.len()), (b.vertices.len(), b.triangles.len()));
+            assert!(a.vertices == b.vertices, "vertices differ: joined {na:?}, by parts {nb:?} (vertices, triangles)");
+            assert!(a.triangles == b.triangles, "triangles differ: joined {na:?}, by parts {nb:?}");
+            assert!(a.kept == b.kept && a.scans == b.scans, "what is written or handed down differs");
+            assert_eq!(a.max_error_m.to_bits(), b.max_error_m.to_bits());
+        };
+        let root = ChunkKey { level: 0, x: 0, y: 0 };
+        let whole = ((0, 128), (0, 96));
+        let plain = build_chunk(&grid, &spec(root, whole, 2.0, None, false)).unwrap();
+        let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
+            .map(|how| build_chunk_thinning(&grid, &spec(root, whole, 2.0, None, true), how).unwrap());
+        let (n0, n1) = (plain.vertices.len(), by_parts.vertices.len());
+        assert!(n1 * 100 < n0 * 97, "{n1} vertices thinned against {n0}");
+        same(&joined, &by_parts);
+        let child = ChunkKey { level: 1, x: 0, y: 1 };
+        let quarter = ((0, 64), (48, 96));
+        let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
+            .map(|how| build_chunk_thinning(&grid, &spec(child, quarter, 1.0, Some(&by_parts), true), how).unwrap());
+        same(&joined, &by_parts);
+        assert!(by_parts.kept.iter().any(|&k| !k), "the child covers part of the void");
+    }
+
     #[test]
     fn thinning_takes_out_vertices_and_keeps_every_sample_within_delta() {
         let (w, h) = (129, 97);

@@ -182,28 +182,29 @@ impl Tin {
     /// its search: each part's twins stand, and only the half-edges on a
     /// part's border look for theirs, in the other parts. (Fuji's root at
     /// 1 m: 13 ms through `from_soup`, on one thread while the other waits.)
+    ///
+    /// A part may have been thinned ([`Tin::collapse`]): its collapsed
+    /// triangles keep their slots, dead, and its collapsed vertices stay
+    /// unconnected, as a collapse in the joined TIN would leave them.
     pub fn from_parts(pts: Vec<V>, parts: &[(&Tin, &[u32])]) -> Tin {
         let mut tin = Tin::unlinked(pts, parts.iter().map(|(sub, _)| sub.num_triangles()).sum());
         // Half-edges with no twin in their part, by their ends' indices.
         let mut open: Vec<([u32; 2], u32)> = Vec::new();
         for &(sub, id) in parts {
-            debug_assert!((0..sub.num_triangles() as u32).all(|t| !sub.is_dead(t)), "a part has no collapsed triangle");
             let base = tin.tv.len() as u32;
-            tin.tv.extend(sub.tv.iter().map(|&v| id[v as usize]));
+            tin.tv.extend(sub.tv.iter().map(|&v| if v == NONE { NONE } else { id[v as usize] }));
             tin.fixed.extend_from_slice(&sub.fixed);
             for (k, &f) in sub.twin.iter().enumerate() {
                 let e = base + k as u32;
-                if f == NONE {
+                if f != NONE {
+                    tin.twin[e as usize] = base + f;
+                } else if tin.tv[e as usize] != NONE {
                     let (a, b) = (tin.tv[e as usize], tin.tv[(base + next(k as u32)) as usize]);
                     open.push(([a.min(b), a.max(b)], e));
-                } else {
-                    tin.twin[e as usize] = base + f;
                 }
             }
         }
-        for (e, &a) in tin.tv.iter().enumerate() {
-            tin.out[a as usize] = e as u32;
-        }
+        tin.reset_out();
         // a → b and b → a meet in the sorted list; an edge alone is the border.
         open.sort_unstable();
         for pair in open.windows(2) {
@@ -213,6 +214,20 @@ impl Tin {
             }
         }
         tin
+    }
+
+    /// Points each connected vertex's out half-edge at the last live
+    /// half-edge leaving it, the one [`Tin::from_soup`] and
+    /// [`Tin::from_parts`] choose; a vertex with none is unconnected. Where
+    /// a free vertex's star starts decides ties in thinning, so a part
+    /// thinned on its own starts each star where the joined TIN would.
+    pub fn reset_out(&mut self) {
+        self.out.fill(NONE);
+        for (e, &a) in self.tv.iter().enumerate() {
+            if a != NONE {
+                self.out[a as usize] = e as u32;
+            }
+        }
     }
 
     /// Number of triangles.
