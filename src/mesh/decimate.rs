@@ -1792,6 +1792,17 @@ mod tests {
     /// dividing-line vertex, holds no vertex without a triangle, and a child
     /// meshed from a thinned parent still refines it (each child triangle
     /// inside one parent triangle, each morph target on the parent surface).
+    /// A chunk with dividing lines, nested in `parent` if given, thinned or not.
+    fn lined<'p>(
+        key: ChunkKey,
+        footprint: (Span, Span),
+        delta_m: f64,
+        parent: Option<&'p ChunkMesh>,
+        thin: bool,
+    ) -> ChunkSpec<'p> {
+        ChunkSpec { key, parent, dividing_lines: true, thin, ..ChunkSpec::unconstrained(footprint, delta_m) }
+    }
+
     #[test]
     fn parts_thinned_in_parallel_make_the_collapses_of_the_joined_tin() {
         // Rough ground with a void, so that thinning also skips stars that
@@ -1808,14 +1819,8 @@ mod tests {
         let filled = crate::heightfield::void_fill(&hf).expect("a void");
         let grid = Grid::new(w, h, &heights, Some(&filled));
         let spec = |key, footprint, delta_m, parent, thin| ChunkSpec {
-            key,
-            footprint,
-            delta_m,
-            parent,
-            dividing_lines: true,
             split_insertion: true,
-            thin,
-            ..ChunkSpec::unconstrained(footprint, delta_m)
+            ..lined(key, footprint, delta_m, parent, thin)
         };
         // The same mesh, vertex for vertex and triangle for triangle, so
         // the same bytes.
@@ -1849,15 +1854,7 @@ mod tests {
         let grid = Grid::new(w, h, &heights, None);
         let root = ChunkKey { level: 0, x: 0, y: 0 };
         let whole = ((0, 128), (0, 96));
-        let spec = |key, footprint, delta_m, parent, thin| ChunkSpec {
-            key,
-            footprint,
-            delta_m,
-            parent,
-            dividing_lines: true,
-            thin,
-            ..ChunkSpec::unconstrained(footprint, delta_m)
-        };
+        let spec = lined;
         let [plain, thinned] =
             [false, true].map(|thin| build_chunk(&grid, &spec(root, whole, 2.0, None, thin)).unwrap());
         let (n0, n1) = (plain.vertices.len(), thinned.vertices.len());
