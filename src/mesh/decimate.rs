@@ -1786,12 +1786,6 @@ mod tests {
         }
     }
 
-    /// Step 5 takes out vertices step 4 no longer needs, and only those: the
-    /// thinned TIN keeps every sample within δ (measured afresh over its
-    /// triangles, not from the mesher's scans), keeps every border and
-    /// dividing-line vertex, holds no vertex without a triangle, and a child
-    /// meshed from a thinned parent still refines it (each child triangle
-    /// inside one parent triangle, each morph target on the parent surface).
     /// A chunk with dividing lines, nested in `parent` if given, thinned or not.
     fn lined<'p>(
         key: ChunkKey,
@@ -1803,6 +1797,9 @@ mod tests {
         ChunkSpec { key, parent, dividing_lines: true, thin, ..ChunkSpec::unconstrained(footprint, delta_m) }
     }
 
+    /// A chunk filled by parts and thinned (`--thin all`'s root) is thinned
+    /// part by part, on the threads: it must make the collapses that
+    /// thinning the joined TIN on one thread made, so the files stay the same.
     #[test]
     fn parts_thinned_in_parallel_make_the_collapses_of_the_joined_tin() {
         // Rough ground with a void, so that thinning also skips stars that
@@ -1847,6 +1844,12 @@ mod tests {
         assert!(by_parts.kept.iter().any(|&k| !k), "the child covers part of the void");
     }
 
+    /// Step 5 takes out vertices step 4 no longer needs, and only those: the
+    /// thinned TIN keeps every sample within δ (measured afresh over its
+    /// triangles, not from the mesher's scans), keeps every border and
+    /// dividing-line vertex, holds no vertex without a triangle, and a child
+    /// meshed from a thinned parent still refines it (each child triangle
+    /// inside one parent triangle, each morph target on the parent surface).
     #[test]
     fn thinning_takes_out_vertices_and_keeps_every_sample_within_delta() {
         let (w, h) = (129, 97);
