@@ -1272,7 +1272,9 @@ fn read_accessor(
     cache: &mut [Option<Vec<u8>>],
 ) -> Result<(Vec<f64>, usize), String> {
     let (n, size) = super::gltf::accessor_layout(acc)?;
-    if n > 4 {
+    // Matrices hold nothing terrachunk writes (and a MAT2 of byte
+    // components, four to the layout table, pads its columns).
+    if acc["type"].as_str().is_some_and(|t| t.starts_with("MAT")) {
         return Err(format!("type {}", acc["type"]));
     }
     let ctype = acc["componentType"].as_u64().unwrap_or(0);
@@ -1344,6 +1346,19 @@ mod tests {
 
     /// The vertex codec's two ends agree at every stride the writer uses
     /// and in both versions, and a view the reader cannot decode says why.
+    /// Matrix accessors are refused, as before the layout table was shared:
+    /// to that table a MAT2 has four components, like a VEC4.
+    #[test]
+    fn a_matrix_accessor_is_refused() {
+        let json = serde_json::json!({"bufferViews": [{"buffer": 0, "byteLength": 16}]});
+        let bin = [0u8; 16];
+        let acc = |ty: &str| serde_json::json!({"bufferView": 0, "componentType": 5126, "count": 1, "type": ty});
+        let read = |ty: &str| read_accessor(&json, &acc(ty), &bin, &mut [None]);
+        assert_eq!(read("VEC4").unwrap(), (vec![0.0; 4], 4));
+        let e = read("MAT2").unwrap_err();
+        assert!(e.contains("MAT2"), "{e}");
+    }
+
     #[test]
     fn a_vertex_stream_decodes_to_what_was_encoded() {
         for stride in (4..=MAX_STRIDE).step_by(4) {
