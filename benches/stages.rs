@@ -15,7 +15,7 @@ use terrachunk::config::VertexCache;
 use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::Heightfield;
 use terrachunk::mesh::ChunkMesh;
-use terrachunk::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use terrachunk::mesh::decimate::{ChunkSpec, DividingLines, Grid, build_chunk};
 use terrachunk::output::compress::NormalEncoding;
 use terrachunk::output::gltf::{GlbContext, encode_glb};
 use terrachunk::pipeline::assemble;
@@ -49,7 +49,7 @@ fn chunk(hf: &Heightfield, n: u32) -> ChunkMesh {
         parent: None,
         keep_parent_edges: true,
         max_vertices: terrachunk::config::MAX_CHUNK_VERTICES as usize,
-        dividing_lines: true,
+        dividing_lines: DividingLines::Children,
         split_insertion: false,
         cancel: None,
         cut_share: terrachunk::mesh::decimate::CUT_SHARE,

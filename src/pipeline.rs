@@ -19,7 +19,7 @@ use crate::config::{Config, ConfigError, dense_leaf_cells};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, Grid, U16_INDEXED, build_chunk};
+use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, DividingLines, Grid, U16_INDEXED, build_chunk};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, MeshVertex, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
@@ -377,7 +377,8 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         let discarded = attempts.elapsed();
-        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp) {
+        let lone_parts = lone_parts(&tree, &mut estimate);
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.refine_estimated = estimated;
@@ -945,6 +946,7 @@ fn build_levels(
     colour: Option<&ColourSource>,
     opts: &BuildOptions,
     tmp: &Path,
+    lone_parts: bool,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
@@ -967,6 +969,7 @@ fn build_levels(
             normals: cfg.normal_encoding(),
         },
         texturer: texturer.as_ref(),
+        lone_parts,
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
@@ -1088,6 +1091,8 @@ struct Run<'a> {
     tmp: &'a Path,
     ctx: GlbContext<'a>,
     texturer: Option<&'a Texturer<'a>>,
+    /// The lone chunks are filled by parts ([`lone_parts`]).
+    lone_parts: bool,
     timers: Timers,
     bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -1234,6 +1239,7 @@ impl Run<'_> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
         let delta = tree.delta_m[level as usize];
+        let few = tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS;
         // A quantized chunk is measured again as it will be written (cut
         // points move sideways to the grid) and, where that misses δ,
         // meshed again with a wider margin next to cut points.
@@ -1253,8 +1259,12 @@ impl Run<'_> {
                 parent,
                 keep_parent_edges: true,
                 max_vertices: self.opts.config.max_chunk_vertices as usize,
-                dividing_lines: tree.splits(level),
-                split_insertion: tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS,
+                dividing_lines: match (tree.splits(level), few && self.lone_parts) {
+                    (true, _) => DividingLines::Children,
+                    (false, true) => DividingLines::Parts,
+                    (false, false) => DividingLines::None,
+                },
+                split_insertion: few,
                 cancel: Some(&self.failed),
                 cut_share: share,
                 cut_lattice: self.ctx.quantization.as_ref().map(|q| q.shift[level as usize]),
@@ -1357,6 +1367,24 @@ const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
 /// its one chunk would keep every other thread waiting. The rule is the
 /// tree's, not the thread count's, so the output is the same at any count.
 const SPLIT_BELOW_CHUNKS: usize = 4;
+
+/// Whether the lone chunks of `tree` (those of a level of fewer than
+/// [`SPLIT_BELOW_CHUNKS`] that does not split: a root that is a leaf, and
+/// the refine levels below it) get dividing lines so that their parts fill
+/// and thin in parallel ([`DividingLines::Parts`]). The lines cost each
+/// chunk the vertices that refine them, so only chunks the estimate puts
+/// at [`PARTS_VERTICES`] or more take them: Fuji 513² at 30 m (3 162
+/// vertices), not a small or flat grid's few triangles. Decided by the
+/// tree and the data, never the thread count.
+fn lone_parts(tree: &ChunkTree, estimate: &mut Estimate) -> bool {
+    let lone = (0..=tree.depth())
+        .any(|l| tree.xs[l as usize].len() * tree.zs[l as usize].len() < SPLIT_BELOW_CHUNKS && !tree.splits(l));
+    lone && estimate.vertices_per_chunk(tree, 0) >= PARTS_VERTICES
+}
+
+/// The fewest vertices a lone chunk is estimated to hold to be filled by
+/// parts ([`lone_parts`]).
+const PARTS_VERTICES: f64 = 2000.0;
 
 /// What a level's summary needs from one written chunk.
 struct LevelFigures {

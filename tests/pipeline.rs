@@ -97,19 +97,29 @@ fn error_is_bounded_per_level_and_falls_with_level() {
     }
 }
 
+/// A tree of many chunks, and a lone leaf large enough to be filled by
+/// parts on the threads (the Fuji crop at 0.25 m: one chunk of some 2 700
+/// vertices, `DividingLines::Parts`).
 #[test]
 fn output_is_byte_identical_with_one_and_two_threads() {
     let tmp = tempfile::tempdir().unwrap();
-    let dem = fixture("jacksboro_fault_u16.png");
-    let (a, b) = (tmp.path().join("one"), tmp.path().join("two"));
-    build(&options(&dem, &a, 1.0, 1)).unwrap();
-    build(&options(&dem, &b, 1.0, 2)).unwrap();
-    let (fa, fb) = (all_files(&a), all_files(&b));
-    assert!(fa.len() > 10);
-    assert_eq!(fa.len(), fb.len());
-    for ((pa, da), (pb, db)) in fa.iter().zip(&fb) {
-        assert_eq!(pa, pb);
-        assert!(da == db, "{} differs between 1 and 2 threads", pa.display());
+    for (name, error, files) in [("jacksboro_fault_u16.png", 1.0, 10), ("fuji_crop_terrainrgb.png", 0.25, 1)] {
+        let dem = fixture(name);
+        let (a, b) = (tmp.path().join(format!("{name}-one")), tmp.path().join(format!("{name}-two")));
+        let r = build(&options(&dem, &a, error, 1)).unwrap();
+        build(&options(&dem, &b, error, 2)).unwrap();
+        if files == 1 {
+            assert_eq!((r.levels.len(), r.levels[0].chunks), (1, 1), "{name}: a lone leaf");
+            assert!(r.levels[0].vertices > 2000, "{name}: {} vertices", r.levels[0].vertices);
+            verified(&b);
+        }
+        let (fa, fb) = (all_files(&a), all_files(&b));
+        assert!(fa.len() > files, "{name}: {} files", fa.len());
+        assert_eq!(fa.len(), fb.len());
+        for ((pa, da), (pb, db)) in fa.iter().zip(&fb) {
+            assert_eq!(pa, pb);
+            assert!(da == db, "{} differs between 1 and 2 threads", pa.display());
+        }
     }
 }
 

@@ -148,9 +148,8 @@ pub struct ChunkSpec<'p> {
     pub keep_parent_edges: bool,
     /// Most vertices allowed (`Config::max_chunk_vertices` in a build).
     pub max_vertices: usize,
-    /// Add the dividing lines (the children's borders). Off only for the
-    /// unconstrained single-TIN baseline the benchmarks compare against.
-    pub dividing_lines: bool,
+    /// Which dividing lines the TIN keeps as fixed edges (step 2).
+    pub dividing_lines: DividingLines,
     /// Fill the parts the dividing lines make in parallel, each a TIN of
     /// its own (the same triangles as one TIN, numbered part by part): for
     /// the chunks of a level too few to keep every thread busy.
@@ -177,6 +176,25 @@ pub struct ChunkSpec<'p> {
     pub thin: bool,
 }
 
+/// The lines through a chunk's middle, across and along, that its TIN
+/// keeps as fixed edges, besides its borders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DividingLines {
+    /// None: one TIN inside the borders (a leaf, the single-TIN baseline,
+    /// the plan's sample windows).
+    None,
+    /// The children's borders, which every level below keeps.
+    Children,
+    /// The same lines in a chunk whose children (if any) keep its
+    /// footprint: a lone leaf large enough to be worth filling by parts in
+    /// parallel ([`ChunkSpec::split_insertion`]), where it would keep every
+    /// other thread waiting. At the top level its TIN starts from the
+    /// samples where the lines meet the borders and each other rather than
+    /// from the four corners, so the lines make no cut points: no vertex
+    /// off the sample grid that no level needs.
+    Parts,
+}
+
 impl ChunkSpec<'_> {
     /// Steps per cell of the grid the file writes positions on exactly
     /// (1: only the samples, as f32 output is taken).
@@ -200,7 +218,7 @@ impl<'p> ChunkSpec<'p> {
             parent: None,
             keep_parent_edges: true,
             max_vertices: usize::MAX,
-            dividing_lines: false,
+            dividing_lines: DividingLines::None,
             split_insertion: false,
             cancel: None,
             cut_share: CUT_SHARE,
@@ -248,8 +266,8 @@ fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Re
         Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice(), spec.height_step);
     let nested = spec.parent.is_some();
     let (mx, mz) = match spec.dividing_lines {
-        true => (midpoint((x0, x1)), midpoint((z0, z1))),
-        false => (None, None),
+        DividingLines::Children | DividingLines::Parts => (midpoint((x0, x1)), midpoint((z0, z1))),
+        DividingLines::None => (None, None),
     };
 
     // Steps 1 and 3a: the parent's triangles, cut along the dividing lines.
@@ -879,16 +897,33 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
             Soup { pts, tris, fixed, origin }
         }
         None => {
-            let c = |j: u32, i: u32| {
-                let h = grid.vertex_height(i as usize, j as usize);
-                V { x: f64::from(j), z: f64::from(i), h, ph: h }
-            };
-            Soup {
-                pts: vec![c(x0, z0), c(x1, z0), c(x1, z1), c(x0, z1)],
-                tris: vec![[0, 1, 2], [0, 2, 3]],
-                fixed: vec![[false; 3]; 2],
-                origin: vec![u32::MAX; 2],
+            // The corners, and with lines for parts the samples where they
+            // meet the borders and each other: a rectangle between each
+            // pair, halved on the diagonal the four corners' pair takes.
+            let (mut xs, mut zs) = (vec![x0], vec![z0]);
+            if spec.dividing_lines == DividingLines::Parts {
+                xs.extend(mx);
+                zs.extend(mz);
             }
+            xs.push(x1);
+            zs.push(z1);
+            let mut pts = Vec::with_capacity(xs.len() * zs.len());
+            for &i in &zs {
+                for &j in &xs {
+                    let h = grid.vertex_height(i as usize, j as usize);
+                    pts.push(V { x: f64::from(j), z: f64::from(i), h, ph: h });
+                }
+            }
+            let n = xs.len() as u32;
+            let mut tris = Vec::new();
+            for r in 0..zs.len() as u32 - 1 {
+                for c in 0..n - 1 {
+                    let k = r * n + c;
+                    tris.extend([[k, k + 1, k + n + 1], [k, k + n + 1, k + n]]);
+                }
+            }
+            let count = tris.len();
+            Soup { pts, tris, fixed: vec![[false; 3]; count], origin: vec![u32::MAX; count] }
         }
     };
     let nested = spec.parent.is_some();
@@ -1750,7 +1785,7 @@ mod tests {
             parent,
             keep_parent_edges: true,
             max_vertices: crate::config::MAX_CHUNK_VERTICES as usize,
-            dividing_lines: true,
+            dividing_lines: DividingLines::Children,
             split_insertion: split,
             cancel: None,
             cut_share: CUT_SHARE,
@@ -1794,7 +1829,13 @@ mod tests {
         parent: Option<&'p ChunkMesh>,
         thin: bool,
     ) -> ChunkSpec<'p> {
-        ChunkSpec { key, parent, dividing_lines: true, thin, ..ChunkSpec::unconstrained(footprint, delta_m) }
+        ChunkSpec {
+            key,
+            parent,
+            dividing_lines: DividingLines::Children,
+            thin,
+            ..ChunkSpec::unconstrained(footprint, delta_m)
+        }
     }
 
     /// A chunk filled by parts and thinned (`--thin all`'s root) is thinned
@@ -1819,15 +1860,6 @@ mod tests {
             split_insertion: true,
             ..lined(key, footprint, delta_m, parent, thin)
         };
-        // The same mesh, vertex for vertex and triangle for triangle, so
-        // the same bytes.
-        let same = |a: &ChunkMesh, b: &ChunkMesh| {
-            let (na, nb) = ((a.vertices.len(), a.triangles.len()), (b.vertices.len(), b.triangles.len()));
-            assert!(a.vertices == b.vertices, "vertices differ: joined {na:?}, by parts {nb:?} (vertices, triangles)");
-            assert!(a.triangles == b.triangles, "triangles differ: joined {na:?}, by parts {nb:?}");
-            assert!(a.kept == b.kept && a.scans == b.scans, "what is written or handed down differs");
-            assert_eq!(a.max_error_m.to_bits(), b.max_error_m.to_bits());
-        };
         let root = ChunkKey { level: 0, x: 0, y: 0 };
         let whole = ((0, 128), (0, 96));
         let plain = build_chunk(&grid, &spec(root, whole, 2.0, None, false)).unwrap();
@@ -1835,13 +1867,60 @@ mod tests {
             .map(|how| build_chunk_thinning(&grid, &spec(root, whole, 2.0, None, true), how).unwrap());
         let (n0, n1) = (plain.vertices.len(), by_parts.vertices.len());
         assert!(n1 * 100 < n0 * 97, "{n1} vertices thinned against {n0}");
-        same(&joined, &by_parts);
+        same_mesh(&joined, &by_parts);
         let child = ChunkKey { level: 1, x: 0, y: 1 };
         let quarter = ((0, 64), (48, 96));
         let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
             .map(|how| build_chunk_thinning(&grid, &spec(child, quarter, 1.0, Some(&by_parts), true), how).unwrap());
-        same(&joined, &by_parts);
+        same_mesh(&joined, &by_parts);
         assert!(by_parts.kept.iter().any(|&k| !k), "the child covers part of the void");
+    }
+
+    /// The same mesh, vertex for vertex and triangle for triangle, so the
+    /// same bytes: `a` thinned joined, `b` by parts.
+    fn same_mesh(a: &ChunkMesh, b: &ChunkMesh) {
+        let (na, nb) = ((a.vertices.len(), a.triangles.len()), (b.vertices.len(), b.triangles.len()));
+        assert!(a.vertices == b.vertices, "vertices differ: joined {na:?}, by parts {nb:?} (vertices, triangles)");
+        assert!(a.triangles == b.triangles, "triangles differ: joined {na:?}, by parts {nb:?}");
+        assert!(a.kept == b.kept && a.scans == b.scans, "what is written or handed down differs");
+        assert_eq!(a.max_error_m.to_bits(), b.max_error_m.to_bits());
+    }
+
+    /// A lone leaf cut into parts only to fill them in parallel
+    /// ([`DividingLines::Parts`]) starts from the samples where its lines
+    /// meet the borders and each other: unlike the children's lines, which
+    /// cut the corners' diagonal at a point off the sample grid where a
+    /// span is odd, it holds no vertex but samples. Filled and thinned by
+    /// parts it is the mesh of filling and thinning it whole, within δ, and
+    /// its lines cost the free leaf few triangles.
+    #[test]
+    fn a_lone_leaf_cut_into_parts_holds_only_samples_and_meets_delta() {
+        // 127 cells across: the vertical line at 63 meets the diagonal off the grid.
+        let (w, h) = (128, 97);
+        let heights = rough(w, h);
+        let grid = Grid::new(w, h, &heights, None);
+        let whole = ((0, 127), (0, 96));
+        let spec = |lines, split| ChunkSpec {
+            dividing_lines: lines,
+            split_insertion: split,
+            thin: true,
+            ..ChunkSpec::unconstrained(whole, 2.0)
+        };
+        let on_samples = |m: &ChunkMesh| m.vertices.iter().all(|v| v.x.fract() == 0.0 && v.z.fract() == 0.0);
+        let children = build_chunk(&grid, &spec(DividingLines::Children, false)).unwrap();
+        assert!(!on_samples(&children), "the children's lines make a cut point here");
+        let free = build_chunk(&grid, &spec(DividingLines::None, false)).unwrap();
+        let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
+            .map(|how| build_chunk_thinning(&grid, &spec(DividingLines::Parts, true), how).unwrap());
+        same_mesh(&joined, &by_parts);
+        assert!(on_samples(&by_parts), "a vertex off the sample grid");
+        assert!(by_parts.max_error_m <= 2.0, "{} m", by_parts.max_error_m);
+        for (x, z) in [(63.0, 48.0), (0.0, 48.0), (127.0, 48.0), (63.0, 0.0), (63.0, 96.0)] {
+            assert!(by_parts.vertices.iter().any(|v| (v.x, v.z) == (x, z)), "({x}, {z}) is where lines meet");
+        }
+        let count = |m: &ChunkMesh| m.kept.iter().filter(|&&k| k).count();
+        let (n, n0) = (count(&by_parts), count(&free));
+        assert!(n0 > 2000 && n * 100 <= n0 * 105, "{n} triangles by parts against {n0} free");
     }
 
     /// Step 5 takes out vertices step 4 no longer needs, and only those: the
@@ -1913,9 +1992,11 @@ mod tests {
 
         let child = ChunkKey { level: 1, x: 1, y: 0 };
         let quarter = ((64, 128), (0, 48));
-        let c =
-            build_chunk(&grid, &ChunkSpec { dividing_lines: false, ..spec(child, quarter, 1.0, Some(&thinned), true) })
-                .unwrap();
+        let c = build_chunk(
+            &grid,
+            &ChunkSpec { dividing_lines: DividingLines::None, ..spec(child, quarter, 1.0, Some(&thinned), true) },
+        )
+        .unwrap();
         assert!(c.max_error_m <= 1.0, "{}", c.max_error_m);
         let parent = thinned.locator();
         for v in &c.vertices {

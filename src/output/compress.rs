@@ -1385,7 +1385,7 @@ mod tests {
     #[test]
     fn cut_error_is_exact_over_what_the_caller_accepts() {
         use crate::heightfield::Heightfield;
-        use crate::mesh::decimate::{ChunkSpec, build_chunk};
+        use crate::mesh::decimate::{ChunkSpec, DividingLines, build_chunk};
         use crate::quadtree::ChunkKey;
         let (w, h) = (257usize, 257usize);
         let heights: Vec<f32> = (0..w * h)
@@ -1418,7 +1418,7 @@ mod tests {
                     parent,
                     keep_parent_edges: true,
                     max_vertices: crate::config::MAX_CHUNK_VERTICES as usize,
-                    dividing_lines: tree.splits(key.level),
+                    dividing_lines: if tree.splits(key.level) { DividingLines::Children } else { DividingLines::None },
                     split_insertion: false,
                     cancel: None,
                     cut_share: crate::mesh::decimate::CUT_SHARE,
