@@ -112,6 +112,7 @@ fn output_is_byte_identical_with_one_and_two_threads() {
             assert_eq!((r.levels.len(), r.levels[0].chunks), (1, 1), "{name}: a lone leaf");
             assert!(r.levels[0].vertices > 2000, "{name}: {} vertices", r.levels[0].vertices);
             verified(&b);
+            khronos_validate(&b);
         }
         let (fa, fb) = (all_files(&a), all_files(&b));
         assert!(fa.len() > files, "{name}: {} files", fa.len());
