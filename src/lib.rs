@@ -4,7 +4,7 @@
 //! [`quadtree`] (plan) → [`mesh`] (decimate, skirt) → [`morph`] →
 //! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`lod`] is what
 //! a client runs per frame (chunk selection, morph weights); [`verify`]
-//! re-checks a written tileset from its files alone; [`bench`] measures speed
+//! re-checks a written tileset from its files alone; [`mod@bench`] measures speed
 //! against error, beside other tools.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]

@@ -468,7 +468,7 @@ pub const CHUNK_VERTICES: f64 = 8000.0;
 /// 8 × 8 of 32 × 32 for a close call, see [`Estimate::leaf_cells`]). Each δ =
 /// max_error_m · 2^k is measured once per window set, when first asked for,
 /// and a smaller δ continues the windows' TINs at twice it
-/// ([`Estimate::density_on`]).
+/// (`Estimate::density_on`).
 pub struct Estimate<'g> {
     grid: &'g Grid<'g>,
     max_error_m: f64,
@@ -659,17 +659,17 @@ impl<'g> Estimate<'g> {
     /// Fuji at 10 m, two levels instead of three take the leaves from 1.24
     /// to 1.06 times the triangles of one unconstrained TIN. Each candidate
     /// is judged as it would be built: over the chunks a build makes of it
-    /// (none below flat ground, [`Self::built`]), with the refine levels
+    /// (none below flat ground, `Self::built`), with the refine levels
     /// [`Self::refine_levels`] gives it. Judged without them (as until stop
     /// 29), Fuji's 64-cell tree at 0.25 m counted a root of some 138 000
     /// vertices, a chunk no build makes, and lost to 32-cell leaves: 597
     /// chunks of 1 600 vertices on average against 213 of 4 300, 2 % more
     /// leaf triangles, and a build 19 % slower. A tree whose
-    /// estimate is within [`CLOSE_CALL`] of the bound is measured again on
+    /// estimate is within `CLOSE_CALL` of the bound is measured again on
     /// up to 8 × 8 windows of 32² cells, which decides. Leaves wider
     /// than [`dense_leaf_cells`] are chosen only up to `widest` cells and
     /// where the densest window says they hold under half of
-    /// `max_chunk_vertices` (see [`build_into`]). Returns the width and
+    /// `max_chunk_vertices` (see `build_into`). Returns the width and
     /// the refine levels it was judged with, the ones to build it with
     /// first.
     pub fn leaf_cells(&mut self, widest: u32) -> (u32, u32) {
@@ -709,7 +709,7 @@ impl<'g> Estimate<'g> {
     /// The estimated surface vertices per chunk of `tree` (a plan over this
     /// grid at this `max_error_m`), measured on window set `set` (0: the
     /// first, 1: the close call's), over the chunks a build would make of
-    /// it ([`Self::built`]). A level holds its interior at the interior
+    /// it (`Self::built`). A level holds its interior at the interior
     /// density, and every chunk's four borders (a border two chunks share
     /// counted by both) at the border density, scaled by the share of valid
     /// samples.
@@ -728,7 +728,7 @@ impl<'g> Estimate<'g> {
         vertices / chunks as f64
     }
 
-    /// Per level of `tree`, how many chunks a build makes ([`Self::built`]).
+    /// Per level of `tree`, how many chunks a build makes (`Self::built`).
     pub fn chunks_built(&mut self, tree: &ChunkTree) -> Vec<usize> {
         self.built(tree).iter().map(Vec::len).collect()
     }
@@ -805,7 +805,7 @@ impl<'g> Estimate<'g> {
     /// estimated at more than [`SURELY_TOO_DENSE`] times as many vertices. Such a chunk is
     /// sure enough to fail that building it to find out (2.3 s for each of
     /// California's two roots at 1 m) is skipped; a closer call is still
-    /// built and decides (see [`build_into`]).
+    /// built and decides (see `build_into`).
     pub fn refine_levels(&mut self, leaf_cells: u32) -> u32 {
         let grid = self.grid;
         for refine in 0..MAX_REFINE_LEVELS {

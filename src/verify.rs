@@ -7,7 +7,7 @@
 //! - error: every valid sample of a chunk's footprint lies within δ(L) of the
 //!   written surface (rasterised in f64 from the f32 positions), is covered by
 //!   a triangle, and chunks without children are within `max_error_m`; an
-//!   error within f64 rounding of the bound is the bound ([`snap_error`]): a
+//!   error within f64 rounding of the bound is the bound (`snap_error`): a
 //!   sample may be exactly δ off, as on integer heights;
 //! - borders: same-level neighbours have the same vertices on their shared
 //!   edge (within f32 rounding of the chunk-local positions);

@@ -179,7 +179,7 @@ pub fn write(path: &Path, rows: &[Row], append: bool) -> Result<(), BenchError> 
     out.flush().map_err(io)
 }
 
-/// Reads a file [`write`] wrote.
+/// Reads a file [`write()`] wrote.
 pub fn read(path: &Path) -> Result<Vec<Row>, BenchError> {
     let text = std::fs::read_to_string(path).map_err(|source| BenchError::Io { path: path.into(), source })?;
     let mut lines = text.lines();

@@ -24,7 +24,7 @@
 //!    make can be filled as TINs of their own and joined, with the same
 //!    triangles: the root does so in parallel ([`ChunkSpec::split_insertion`]).
 //! 5. Where [`ChunkSpec::thin`] says so, take out the free vertices step 4
-//!    added that the finished TIN no longer needs ([`thin`]).
+//!    added that the finished TIN no longer needs (`thin`).
 //!
 //! Decisions are made in f64 grid coordinates; next to cut points the
 //! target is shrunk by a margin that covers the rounding of the written
@@ -172,7 +172,7 @@ pub struct ChunkSpec<'p> {
     /// for ([`Targets::rounding`]). `None`: f32 output.
     pub height_step: Option<f64>,
     /// Step 5: take out the vertices the finished mesh does not need
-    /// ([`thin`]).
+    /// (`thin`).
     pub thin: bool,
 }
 

@@ -10,7 +10,7 @@
 //! shared vertex alike and their borders stay identical:
 //! - horizontally, the step is the sample spacing / 2^k(L), with k(L) the
 //!   largest that fits the level's widest footprint in 65 535 steps, and at
-//!   most 8 ([`MAX_SHIFT`]): every DEM sample is exactly on the grid, and
+//!   most 8 (`MAX_SHIFT`): every DEM sample is exactly on the grid, and
 //!   only the cut points (where a dividing line crosses a parent edge, the
 //!   one kind of vertex off the sample grid) are placed on it by the mesher.
 //!   Finer than 1/256 of a cell (chunks under 128 cells wide) bought nothing
@@ -40,7 +40,7 @@
 //! δ(L) − step/2, as this did before, cost California at 1 m 4.8 % more
 //! surface vertices than `none`. Cut points, the one kind of vertex
 //! off the sample grid, are placed on the level's grid by the mesher itself
-//! ([`crate::mesh::decimate::CutLattice`]): moved along their dividing line
+//! ([`crate::mesh::decimate::ChunkSpec::cut_lattice`]): moved along their dividing line
 //! to the nearest step, where the file holds them exactly, so the surface
 //! the mesher measures is the one written. Crossings closer together than
 //! a step land on one point as separate vertices, each with its own morph
@@ -759,7 +759,7 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
 /// skirt, which share one) in three bufferViews, each holding every set in
 /// turn, their accessors starting where their set does:
 /// - the vertices, interleaved: POSITION (u16 steps, 8 bytes), the morph
-///   delta (see [`delta_column`]), then TEXCOORD_0 (u16 normalized),
+///   delta (see `delta_column`), then TEXCOORD_0 (u16 normalized),
 ///   TANGENT (i8 normalized) and TEXCOORD_1 where the texture has them;
 /// - NORMAL, i8 normalized, 4 bytes, in a view of its own because
 ///   meshopt's OCTAHEDRAL filter applies to a whole view: `meshopt` stores
@@ -775,7 +775,7 @@ fn delta_column(frame: &Frame, prims: &[PrimData]) -> Column {
 /// Three views instead of one per stream and primitive shorten the JSON and
 /// save each meshopt stream's header and tail. With `meshopt-v1`, a chunk
 /// over 255 cells wide has a fourth, first: POSITION alone, through the
-/// EXPONENTIAL filter (see [`exp_position_column`]). Returns each primitive's
+/// EXPONENTIAL filter (see `exp_position_column`). Returns each primitive's
 /// `attributes`, index accessor and morph target accessor (its set's).
 pub fn write_quantized(
     sink: &mut Sink,

@@ -15,7 +15,7 @@
 //! Texel `k` of `n` along an axis lies at `x0 + k·(x1 − x0)/(n − 1)`: the
 //! first and last texel centres lie on the footprint's edges, so T_g =
 //! footprint / (n − 1), and neighbours sample their shared edge at the same
-//! places ([`resample`] makes those texels equal bit for bit). TEXCOORD_0
+//! places ([`resample()`] makes those texels equal bit for bit). TEXCOORD_0
 //! maps the footprint exactly onto the texel centres,
 //! `u = (½ + (n − 1)·(x − x0)/(x1 − x0)) / n`, with clamp-to-edge sampling:
 //! each ground point shows the colour sampled at that point, and both sides
