@@ -8,7 +8,8 @@
 //!    parent edge fixed (never flipped), so whatever is inserted later stays
 //!    inside a parent triangle: the child refines the parent and its morph to
 //!    the parent surface is exact everywhere (DESIGN.md, promise 3). The top
-//!    level starts from its four corners.
+//!    level starts from its four corners (a lone leaf cut into parts, from
+//!    the nine samples where its lines meet: [`DividingLines::Parts`]).
 //! 2. Cut the triangles along the dividing lines (the children's borders),
 //!    at points on the crossed edges that take the parent surface height;
 //!    the pieces of the lines are fixed edges. Where a line crosses the
@@ -22,7 +23,8 @@
 //!    sample is within δ (samples on the lines of steps 2–3 never move).
 //!    No insertion or flip crosses a dividing line, so the parts the lines
 //!    make can be filled as TINs of their own and joined, with the same
-//!    triangles: the root does so in parallel ([`ChunkSpec::split_insertion`]).
+//!    triangles: the root, and a large lone leaf, do so in parallel
+//!    ([`ChunkSpec::split_insertion`]).
 //! 5. Where [`ChunkSpec::thin`] says so, take out the free vertices step 4
 //!    added that the finished TIN no longer needs (`thin`).
 //!
