@@ -1239,7 +1239,7 @@ impl Run<'_> {
         let (tree, grid, timers) = (self.tree, self.grid, &self.timers);
         let level = key.level;
         let delta = tree.delta_m[level as usize];
-        let few = tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS;
+        let few = few_chunks(tree, level);
         // A quantized chunk is measured again as it will be written (cut
         // points move sideways to the grid) and, where that misses δ,
         // meshed again with a wider margin next to cut points.
@@ -1368,6 +1368,12 @@ const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
 /// tree's, not the thread count's, so the output is the same at any count.
 const SPLIT_BELOW_CHUNKS: usize = 4;
 
+/// Whether `level` of `tree` has fewer than [`SPLIT_BELOW_CHUNKS`] chunks,
+/// so that its chunks fill their parts in parallel.
+fn few_chunks(tree: &ChunkTree, level: u32) -> bool {
+    tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS
+}
+
 /// Whether the lone chunks of `tree` (those of a level of fewer than
 /// [`SPLIT_BELOW_CHUNKS`] that does not split: a root that is a leaf, and
 /// the refine levels below it) get dividing lines so that their parts fill
@@ -1377,8 +1383,7 @@ const SPLIT_BELOW_CHUNKS: usize = 4;
 /// vertices), not a small or flat grid's few triangles. Decided by the
 /// tree and the data, never the thread count.
 fn lone_parts(tree: &ChunkTree, estimate: &mut Estimate) -> bool {
-    let lone = (0..=tree.depth())
-        .any(|l| tree.xs[l as usize].len() * tree.zs[l as usize].len() < SPLIT_BELOW_CHUNKS && !tree.splits(l));
+    let lone = (0..=tree.depth()).any(|l| few_chunks(tree, l) && !tree.splits(l));
     lone && estimate.vertices_per_chunk(tree, 0) >= PARTS_VERTICES
 }
 
