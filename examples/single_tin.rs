@@ -33,7 +33,7 @@ fn main() {
     let secs = t.elapsed().as_secs_f64();
     let tris = mesh.kept.iter().filter(|k| **k).count();
     println!(
-        "{} samples: {} triangles, {} vertices, max error {:.4} m (target {max_error} m), {secs:.2} s",
+        "{} samples: {} triangles, {} vertices, max error {:.4} m (target {max_error} m), {secs:.4} s",
         hf.width * hf.height,
         tris,
         mesh.vertices.len(),
