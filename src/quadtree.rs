@@ -19,6 +19,11 @@
 //! chunks exist is decided later, by the mesher: a chunk whose TIN already
 //! meets `max_error` has no children, and a footprint with no valid sample is
 //! never made.
+//!
+//! How wide the leaves are and how many refine levels to start with, when
+//! the settings leave them to the data, is [`estimate`]'s choice.
+
+pub mod estimate;
 
 /// A closed interval of grid cells `[a, b]` along one axis (sample indices).
 pub type Span = (u32, u32);

@@ -11,8 +11,9 @@ use serde_json::{Value, json};
 use terrachunk::config::{Compress, Config, Thin, VertexCache};
 use terrachunk::mesh::decimate::Grid;
 use terrachunk::output::tileset::extras_schemas;
-use terrachunk::pipeline::{CHUNK_VERTICES, Estimate, build};
+use terrachunk::pipeline::build;
 use terrachunk::quadtree::ChunkTree;
+use terrachunk::quadtree::estimate::{CHUNK_VERTICES, Estimate};
 use terrachunk::verify::{read_chunk, verify};
 
 use crate::common::{

@@ -2018,7 +2018,7 @@ mod tests {
     }
 
     /// The leaf-width estimate measures each δ by continuing its windows'
-    /// TINs from twice that δ (`pipeline::Estimate`). A continued TIN is the
+    /// TINs from twice that δ (`quadtree::estimate::Estimate`). A continued TIN is the
     /// free TIN at its δ but for the order its points went in: within δ,
     /// every point it started from kept, its borders exactly a fresh TIN's
     /// (each interval split at its worst sample whatever the δ), and about
