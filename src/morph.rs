@@ -133,6 +133,11 @@ impl SurfaceLocator<'_> {
                 continue;
             }
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+            // Farther than `reach` it is neither inside nor the nearest
+            // within reach.
+            if surely_beyond(&a, &p, &q, x, z, reach) {
+                continue;
+            }
             let (outside, h) = barycentric(&a, &p, &q, x, z);
             if !outside.is_finite() {
                 continue;
@@ -163,6 +168,9 @@ impl SurfaceLocator<'_> {
                         continue;
                     }
                     let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+                    if surely_beyond(&a, &p, &q, x, z, tol) {
+                        continue;
+                    }
                     let (outside, h) = barycentric(&a, &p, &q, x, z);
                     if outside <= tol && !found.iter().any(|f| f.0 == t) {
                         found.push((t, h));
@@ -238,6 +246,25 @@ pub fn points_near_triangle(
             }
         }
     }
+}
+
+/// Whether (x, z) is surely more than `tol` grid units outside triangle
+/// (a, b, c), as [`barycentric`] measures it: beyond one edge's line, on the
+/// side away from the third corner, by more than `tol` and a margin (10⁻⁹
+/// grid units) far above the rounding of either measure. The distance to a
+/// triangle is at least the distance to the line of any edge it lies
+/// beyond, so this turns away only what `barycentric` would, and costs no
+/// division or root: the locator asks it first of every triangle whose box
+/// is near the point (most of which are not under it).
+#[inline]
+fn surely_beyond(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f64, tol: f64) -> bool {
+    let det = (b.x - a.x) * (c.z - a.z) - (c.x - a.x) * (b.z - a.z);
+    let reach = tol + 1e-9;
+    [(a, b), (b, c), (c, a)].into_iter().any(|(p, q)| {
+        let (dx, dz) = (q.x - p.x, q.z - p.z);
+        let cross = dx * (z - p.z) - dz * (x - p.x);
+        cross * det < 0.0 && cross * cross > reach * reach * (dx * dx + dz * dz)
+    })
 }
 
 /// How far outside triangle (a, b, c) the point is, in grid units (0 when
@@ -363,5 +390,48 @@ mod tests {
         assert!(near[0].1.abs() < 1e-12 && (near[1].1 + 1e-5).abs() < 1e-9, "{near:?}");
         // Further than the rounding, only the flat triangle.
         assert_eq!(loc.near(0.9, 0.5, 1e-6).iter().map(|n| n.0).collect::<Vec<_>>(), vec![0]);
+    }
+
+    /// The locator's shortcut turns away only triangles `barycentric` puts
+    /// more than the tolerance outside, and does turn those beyond an edge
+    /// away: over random triangles (slivers among them, either orientation)
+    /// and points near and on them, at the tolerances `verify` and the
+    /// mesher use.
+    #[test]
+    fn surely_beyond_turns_away_only_what_barycentric_puts_outside() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % 1_000_000) as f64 / 1_000_000.0
+        };
+        let (mut turned, mut beyond) = (0, 0);
+        for n in 0..200_000 {
+            let o = (4000.0 * next(), 4000.0 * next());
+            let mut corner = || v(o.0 + 8.0 * next(), o.1 + 8.0 * next(), 0.0);
+            let (a, b, mut c) = (corner(), corner(), corner());
+            if n % 5 == 0 {
+                // A sliver: c a hair off the line through a and b.
+                let t = next();
+                c = v(a.x + t * (b.x - a.x) + 1e-7 * next(), a.z + t * (b.z - a.z), 0.0);
+            }
+            let (x, z) = if n % 3 == 0 {
+                // On an edge, within rounding.
+                let t = next();
+                (a.x + t * (b.x - a.x), a.z + t * (b.z - a.z) + 1e-9 * (next() - 0.5))
+            } else {
+                (o.0 - 2.0 + 12.0 * next(), o.1 - 2.0 + 12.0 * next())
+            };
+            let tol = [1e-9, 1e-6, 1e-4, 0.01][n % 4];
+            let outside = barycentric(&a, &b, &c, x, z).0;
+            if surely_beyond(&a, &b, &c, x, z, tol) {
+                turned += 1;
+                assert!(outside > tol, "turned away at {outside} ≤ {tol}: {a:?} {b:?} {c:?} ({x}, {z})");
+            }
+            beyond += usize::from(outside > 0.1);
+        }
+        // Most points well outside are turned away without a division.
+        assert!(turned * 10 > beyond * 9, "{turned} turned away of {beyond} beyond 0.1");
     }
 }
