@@ -1,8 +1,8 @@
 //! Mesh: per chunk, a TIN within δ(L) of every valid sample, nested in its
-//! parent's ([`decimate`]); then skirts on its borders ([`skirt`]); and the
-//! independent re-measurement of both ([`check`]).
+//! parent's ([`decimate`]); then skirts on its borders ([`skirt`]). Both
+//! are re-measured independently, from the written files, by
+//! [`crate::verify`].
 
-pub mod check;
 pub mod decimate;
 pub mod skirt;
 pub mod tin;

@@ -1,1 +1,0 @@
-//! Check: re-measure a tileset from its files (see verify).
