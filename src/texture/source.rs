@@ -318,7 +318,7 @@ struct Tint {
     land: (f64, f64),
     deepest: f64,
     /// [`LAND`] and [`SEA`] in linear light, converted once rather than per
-    /// texel (a fifth of the map's time, with the same values).
+    /// texel (the same values; about 5 % of the map's time).
     land_stops: [(f64, [f64; 3]); 6],
     sea_stops: [(f64, [f64; 3]); 3],
 }
