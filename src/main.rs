@@ -10,7 +10,7 @@ use terrachunk::bench;
 use terrachunk::config::{Compress, Config, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
 use terrachunk::texture::TextureSource;
-use terrachunk::verify::{read_chunk, verify};
+use terrachunk::verify::{read_chunk, verify_with_progress};
 
 #[derive(Parser)]
 #[command(name = "terrachunk", version, about = "DEM → Chunked-LOD glTF tileset with a 3D Tiles 1.1 index")]
@@ -334,7 +334,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Verify { dir, dem } => {
             let over = (!dem.is_empty()).then_some(dem.as_slice());
-            let r = match verify(&dir, over) {
+            let r = match verify_with_progress(&dir, over, std::io::stderr().is_terminal()) {
                 Ok(r) => r,
                 Err(e) => {
                     eprintln!("error: {e}");

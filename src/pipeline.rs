@@ -468,7 +468,7 @@ fn build_levels(
         },
         bytes: AtomicU64::new(0),
         failed: std::sync::atomic::AtomicBool::new(false),
-        bar: progress_bar(opts.progress, planned as u64),
+        bar: progress_bar(opts.progress, planned as u64, "chunks at most"),
     };
     let chunks = run.all_chunks();
     run.bar.finish_and_clear();
@@ -984,13 +984,15 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
     }
 }
 
-fn progress_bar(enabled: bool, len: u64) -> indicatif::ProgressBar {
+/// A progress bar on stderr over `len` items named `what` (`"chunks"`), or a
+/// hidden one where `enabled` is false (not a terminal, or in tests).
+pub(crate) fn progress_bar(enabled: bool, len: u64, what: &str) -> indicatif::ProgressBar {
     if !enabled {
         return indicatif::ProgressBar::hidden();
     }
     let bar = indicatif::ProgressBar::new(len);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("[{bar:40}] {pos}/{len} chunks at most {elapsed}")
+        indicatif::ProgressStyle::with_template(&format!("[{{bar:40}}] {{pos}}/{{len}} {what} {{elapsed}}"))
             .expect("valid template")
             .progress_chars("=> "),
     );

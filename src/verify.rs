@@ -426,6 +426,17 @@ fn seam_tolerance(tx: &TextureExtras) -> (u8, f64) {
 
 /// Checks the tileset at `dir`; `dem` overrides the source it names.
 pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyReport, VerifyError> {
+    verify_with_progress(dir, dem_override, false)
+}
+
+/// [`verify`], with a progress bar over the chunks on stderr where
+/// `progress` (the command line's, on a terminal: a large tileset takes
+/// about as long to verify as to build).
+pub fn verify_with_progress(
+    dir: &Path,
+    dem_override: Option<&[PathBuf]>,
+    progress: bool,
+) -> Result<VerifyReport, VerifyError> {
     let ts_path = dir.join("tileset.json");
     let text = std::fs::read_to_string(&ts_path).map_err(|e| file_err(&ts_path, format!("cannot read: {e}")))?;
     let ts: Value = serde_json::from_str(&text).map_err(|e| file_err(&ts_path, format!("bad JSON: {e}")))?;
@@ -467,8 +478,10 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
     // order, then the borders between same-level neighbours.
     let children: std::collections::BTreeSet<ChunkKey> = tiles.values().flatten().copied().collect();
     let roots: Vec<ChunkKey> = tiles.keys().filter(|k| !children.contains(k)).copied().collect();
-    let walk = Walk { dir, hf: &hf, extras: &extras, tiles: &tiles };
+    let bar = crate::pipeline::progress_bar(progress, tiles.len() as u64, "chunks");
+    let walk = Walk { dir, hf: &hf, extras: &extras, tiles: &tiles, bar: &bar };
     let found: Vec<Visited> = roots.par_iter().flat_map_iter(|&k| walk.visit(k, Parent::None)).collect();
+    bar.finish_and_clear();
     let mut by_level: BTreeMap<u32, BTreeMap<ChunkKey, Visited>> = BTreeMap::new();
     for v in found {
         by_level.entry(v.key.level).or_default().insert(v.key, v);
@@ -545,6 +558,7 @@ struct Walk<'a> {
     hf: &'a crate::heightfield::Heightfield,
     extras: &'a TilesetExtras,
     tiles: &'a BTreeMap<ChunkKey, Vec<ChunkKey>>,
+    bar: &'a indicatif::ProgressBar,
 }
 
 impl Walk<'_> {
@@ -568,6 +582,7 @@ impl Walk<'_> {
             }
             Err(e) => Visited { key: k, read: vec![format!("chunk {}: {e}", name(k))], checked: None, borders: None },
         });
+        self.bar.inc(1);
         out
     }
 
