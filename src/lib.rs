@@ -20,6 +20,7 @@ pub mod mesh;
 pub mod morph;
 pub mod output;
 pub mod pipeline;
+mod progress;
 pub mod quadtree;
 pub mod texture;
 pub mod verify;

@@ -25,6 +25,7 @@ use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
 use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
+use crate::progress;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
 use crate::texture::source::{generate, generated_to_px, load_image};
@@ -468,7 +469,7 @@ fn build_levels(
         },
         bytes: AtomicU64::new(0),
         failed: std::sync::atomic::AtomicBool::new(false),
-        bar: progress_bar(opts.progress, planned as u64, "chunks at most"),
+        bar: progress::bar(opts.progress, planned as u64, "chunks at most"),
     };
     let chunks = run.all_chunks();
     run.bar.finish_and_clear();
@@ -982,21 +983,6 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
                 minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
             .into(),
     }
-}
-
-/// A progress bar on stderr over `len` items named `what` (`"chunks"`), or a
-/// hidden one where `enabled` is false (not a terminal, or in tests).
-pub(crate) fn progress_bar(enabled: bool, len: u64, what: &str) -> indicatif::ProgressBar {
-    if !enabled {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(len);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(&format!("[{{bar:40}}] {{pos}}/{{len}} {what} {{elapsed}}"))
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar
 }
 
 /// A sibling of `out` that a failed or killed run leaves instead of a partial tileset.

@@ -478,7 +478,7 @@ pub fn verify_with_progress(
     // order, then the borders between same-level neighbours.
     let children: std::collections::BTreeSet<ChunkKey> = tiles.values().flatten().copied().collect();
     let roots: Vec<ChunkKey> = tiles.keys().filter(|k| !children.contains(k)).copied().collect();
-    let bar = crate::pipeline::progress_bar(progress, tiles.len() as u64, "chunks");
+    let bar = crate::progress::bar(progress, tiles.len() as u64, "chunks");
     let walk = Walk { dir, hf: &hf, extras: &extras, tiles: &tiles, bar: &bar };
     let found: Vec<Visited> = roots.par_iter().flat_map_iter(|&k| walk.visit(k, Parent::None)).collect();
     bar.finish_and_clear();
