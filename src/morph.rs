@@ -121,33 +121,50 @@ impl SurfaceLocator<'_> {
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
         let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.index.cell, n);
-        let bucket = self.index.bucket(
-            b(z, self.index.origin.1, self.index.nz) * self.index.nx + b(x, self.index.origin.0, self.index.nx),
-        );
-        let mut inside: Option<(f64, u32, f64)> = None; // (area, t, h)
-        let mut nearest: Option<(f64, u32, f64)> = None; // (distance, t, h)
+        let (ox, oz) = self.index.origin;
+        let (nx, nz) = (self.index.nx, self.index.nz);
+        let own = b(z, oz, nz) * nx + b(x, ox, nx);
+        // The containing triangle of largest area (area, t, h) and the
+        // nearest (distance, t, h).
+        type Best = Option<(f64, u32, f64)>;
+        let (mut inside, mut nearest): (Best, Best) = (None, None);
         // Only a triangle within the tolerance can be returned.
         let reach = tol.max(1e-6);
-        for &t in bucket {
+        let consider = |t: u32, inside: &mut Best, nearest: &mut Best| {
             if self.index.far(t, x, z, reach) {
-                continue;
+                return;
             }
             let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
             // Farther than `reach` it is neither inside nor the nearest
             // within reach.
             if surely_beyond(&a, &p, &q, x, z, reach) {
-                continue;
+                return;
             }
             let (outside, h) = barycentric(&a, &p, &q, x, z);
             if !outside.is_finite() {
-                continue;
+                return;
             }
             let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
             if outside == 0.0 && inside.is_none_or(|w| area > w.0) {
-                inside = Some((area, t, h));
+                *inside = Some((area, t, h));
             }
             if nearest.is_none_or(|n| outside < n.0) {
-                nearest = Some((outside, t, h));
+                *nearest = Some((outside, t, h));
+            }
+        };
+        // A triangle containing the point has it in its bounding box, so it
+        // is in the point's own bucket.
+        self.index.bucket(own).iter().for_each(|&t| consider(t, &mut inside, &mut nearest));
+        // Inside none (a point rounded into a hole or off the border): the
+        // nearest within reach may lie wholly in a neighbouring bucket,
+        // across a bucket edge less than `reach` away.
+        if inside.is_none() {
+            for bz in b(z - reach, oz, nz)..=b(z + reach, oz, nz) {
+                for bx in b(x - reach, ox, nx)..=b(x + reach, ox, nx) {
+                    if bz * nx + bx != own {
+                        self.index.bucket(bz * nx + bx).iter().for_each(|&t| consider(t, &mut inside, &mut nearest));
+                    }
+                }
             }
         }
         inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= reach).map(|n| (n.1, n.2)))
@@ -390,6 +407,38 @@ mod tests {
         assert!(near[0].1.abs() < 1e-12 && (near[1].1 + 1e-5).abs() < 1e-9, "{near:?}");
         // Further than the rounding, only the flat triangle.
         assert_eq!(loc.near(0.9, 0.5, 1e-6).iter().map(|n| n.0).collect::<Vec<_>>(), vec![0]);
+    }
+
+    /// A point rounded into a hole, a hair from a triangle that lies wholly
+    /// in the next bucket: `locate` still finds that triangle, as `near`
+    /// does. (Before, it searched only the point's own bucket and found
+    /// nothing.)
+    #[test]
+    fn locate_finds_the_nearest_across_a_bucket_edge() {
+        // 16 triangles over 10 × 10 make 5-unit buckets: a strip of 8 ends
+        // 10⁻⁸ short of x = 5, another of 8 lies over x ∈ [8, 10]; between
+        // them is a hole. Heights are h = x.
+        let edge = 5.0 - 1e-8;
+        let mut verts = Vec::new();
+        let mut tris = Vec::new();
+        for (x0, x1) in [(0.0, edge), (8.0, 10.0)] {
+            for k in 0..4 {
+                let (z0, z1) = (2.5 * k as f64, 2.5 * (k + 1) as f64);
+                let n = verts.len() as u32;
+                verts.extend([v(x0, z0, x0), v(x1, z0, x1), v(x1, z1, x1), v(x0, z1, x0)]);
+                tris.extend([[n, n + 2, n + 1], [n, n + 3, n + 2]]);
+            }
+        }
+        let loc = SurfaceLocator::from_parts(&verts, &tris);
+        assert_eq!(loc.index.cell, 5.0, "the buckets' edge is at x = 5");
+        let (x, z) = (5.0 + 1e-9, 3.7);
+        let near = loc.near(x, z, 1e-6);
+        assert_eq!(near.len(), 1, "{near:?}");
+        let (t, h) = loc.locate(x, z, 1e-6).expect("the strip is 1.1e-8 away");
+        assert_eq!(t, near[0].0);
+        assert!((h - x).abs() < 1e-9, "extrapolated on h = x: {h}");
+        // Beyond the tolerance, nothing.
+        assert_eq!(loc.locate(5.0 + 1e-5, z, 1e-6), None);
     }
 
     /// The locator's shortcut turns away only triangles `barycentric` puts
