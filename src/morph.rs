@@ -441,6 +441,92 @@ mod tests {
         assert_eq!(loc.locate(5.0 + 1e-5, z, 1e-6), None);
     }
 
+    /// `locate` and `near` agree on random meshes with holes, at points on,
+    /// a hair off and away from the triangles' edges: `locate` answers
+    /// exactly where `near` finds a triangle within the tolerance, and
+    /// answers with one of those.
+    #[test]
+    fn locate_answers_where_near_finds_a_triangle() {
+        let mut seed = 0x51f1_5eed_0bad_cafeu64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % 1_000_000) as f64 / 1_000_000.0
+        };
+        let (mut answered, mut refused) = (0, 0);
+        for _ in 0..40 {
+            // A 12 × 9 grid of jittered vertices, a third of its triangles
+            // dropped (holes).
+            let (w, h) = (12usize, 9usize);
+            let mut verts: Vec<MeshVertex> = (0..=h)
+                .flat_map(|i| (0..=w).map(move |j| (i, j)))
+                .map(|(i, j)| v(j as f64 + 0.6 * (next() - 0.5), i as f64 + 0.6 * (next() - 0.5), 50.0 * next()))
+                .collect();
+            let at = |i: usize, j: usize| (i * (w + 1) + j) as u32;
+            let mut tris = Vec::new();
+            for i in 0..h {
+                for j in 0..w {
+                    for t in [[at(i, j), at(i + 1, j), at(i + 1, j + 1)], [at(i, j), at(i + 1, j + 1), at(i, j + 1)]] {
+                        if next() > 0.33 {
+                            tris.push(t);
+                        }
+                    }
+                }
+            }
+            // Inner vertices near a bucket edge (x = origin + k · cell) moved
+            // 10⁻⁸ to one side of it: a point 1.1 · 10⁻⁸ across is then
+            // near triangles that may lie wholly in the other bucket. (The
+            // buckets depend on the box and the count, which this keeps.)
+            let index = LocatorIndex::new(&verts, &tris);
+            let (x0, cell) = (index.origin.0, index.cell);
+            let mut across = Vec::new();
+            for (n, p) in verts.iter_mut().enumerate() {
+                let (i, j) = (n / (w + 1), n % (w + 1));
+                let edge = x0 + ((p.x - x0) / cell).round() * cell;
+                if i > 0 && i < h && j > 0 && j < w && (p.x - edge).abs() < 0.2 {
+                    let side = if next() < 0.5 { -1.0 } else { 1.0 };
+                    p.x = edge + side * 1e-8;
+                    across.push((p.x - side * 1.1e-8, p.z));
+                }
+            }
+            assert_eq!(LocatorIndex::new(&verts, &tris).cell, cell);
+            let loc = SurfaceLocator::from_parts(&verts, &tris);
+            for &(x, z) in &across {
+                let near = loc.near(x, z, 1e-6);
+                assert_eq!(loc.locate(x, z, 1e-6).is_some(), !near.is_empty(), "({x}, {z}): near {near:?}");
+            }
+            for _ in 0..2000 {
+                let tri = tris[(next() * tris.len() as f64) as usize].map(|k| verts[k as usize]);
+                let k = (next() * 3.0) as usize % 3;
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                let t = next();
+                let (dx, dz) = (b.x - a.x, b.z - a.z);
+                let len = (dx * dx + dz * dz).sqrt();
+                // On the edge, a hair either side of it (within and beyond
+                // the tolerance), or anywhere over the grid.
+                let off = [0.0, 5e-7, -5e-7, 1.5e-6, -1.5e-6, 0.3][(next() * 6.0) as usize % 6];
+                let (x, z) = if off == 0.3 {
+                    (next() * w as f64, next() * h as f64)
+                } else {
+                    (a.x + t * dx - off * dz / len, a.z + t * dz + off * dx / len)
+                };
+                let near = loc.near(x, z, 1e-6);
+                match loc.locate(x, z, 1e-6) {
+                    Some((t, _)) => {
+                        assert!(near.iter().any(|n| n.0 == t), "({x}, {z}): locate gave {t}, near {near:?}");
+                        answered += 1;
+                    }
+                    None => {
+                        assert!(near.is_empty(), "({x}, {z}): locate gave nothing, near {near:?}");
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        assert!(answered > 20_000 && refused > 5_000, "{answered} answered, {refused} refused");
+    }
+
     /// The locator's shortcut turns away only triangles `barycentric` puts
     /// more than the tolerance outside, and does turn those beyond an edge
     /// away: over random triangles (slivers among them, either orientation)
