@@ -124,50 +124,56 @@ impl SurfaceLocator<'_> {
         let (ox, oz) = self.index.origin;
         let (nx, nz) = (self.index.nx, self.index.nz);
         let own = b(z, oz, nz) * nx + b(x, ox, nx);
-        // The containing triangle of largest area (area, t, h) and the
-        // nearest (distance, t, h).
-        type Best = Option<(f64, u32, f64)>;
-        let (mut inside, mut nearest): (Best, Best) = (None, None);
         // Only a triangle within the tolerance can be returned.
         let reach = tol.max(1e-6);
-        let consider = |t: u32, inside: &mut Best, nearest: &mut Best| {
-            if self.index.far(t, x, z, reach) {
-                return;
-            }
-            let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-            // Farther than `reach` it is neither inside nor the nearest
-            // within reach.
-            if surely_beyond(&a, &p, &q, x, z, reach) {
-                return;
-            }
-            let (outside, h) = barycentric(&a, &p, &q, x, z);
-            if !outside.is_finite() {
-                return;
-            }
-            let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
-            if outside == 0.0 && inside.is_none_or(|w| area > w.0) {
-                *inside = Some((area, t, h));
-            }
-            if nearest.is_none_or(|n| outside < n.0) {
-                *nearest = Some((outside, t, h));
-            }
-        };
+        let mut found = Found::default();
         // A triangle containing the point has it in its bounding box, so it
         // is in the point's own bucket.
-        self.index.bucket(own).iter().for_each(|&t| consider(t, &mut inside, &mut nearest));
+        for &t in self.index.bucket(own) {
+            self.weigh(t, x, z, reach, &mut found);
+        }
         // Inside none (a point rounded into a hole or off the border): the
         // nearest within reach may lie wholly in a neighbouring bucket,
         // across a bucket edge less than `reach` away.
-        if inside.is_none() {
+        if found.inside.is_none() {
             for bz in b(z - reach, oz, nz)..=b(z + reach, oz, nz) {
                 for bx in b(x - reach, ox, nx)..=b(x + reach, ox, nx) {
                     if bz * nx + bx != own {
-                        self.index.bucket(bz * nx + bx).iter().for_each(|&t| consider(t, &mut inside, &mut nearest));
+                        for &t in self.index.bucket(bz * nx + bx) {
+                            self.weigh(t, x, z, reach, &mut found);
+                        }
                     }
                 }
             }
         }
+        let Found { inside, nearest } = found;
         inside.map(|w| (w.1, w.2)).or(nearest.filter(|n| n.0 <= reach).map(|n| (n.1, n.2)))
+    }
+
+    /// Weighs triangle `t` for [`Self::locate`] at (x, z): whether it
+    /// contains the point with a larger area than the best so far, or is
+    /// nearer than the nearest so far. Farther than `reach` it is neither
+    /// inside nor the nearest within reach, and is turned away unmeasured.
+    #[inline(always)]
+    fn weigh(&self, t: u32, x: f64, z: f64, reach: f64, found: &mut Found) {
+        if self.index.far(t, x, z, reach) {
+            return;
+        }
+        let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+        if surely_beyond(&a, &p, &q, x, z, reach) {
+            return;
+        }
+        let (outside, h) = barycentric(&a, &p, &q, x, z);
+        if !outside.is_finite() {
+            return;
+        }
+        let area = ((p.x - a.x) * (q.z - a.z) - (q.x - a.x) * (p.z - a.z)).abs();
+        if outside == 0.0 && found.inside.is_none_or(|w| area > w.0) {
+            found.inside = Some((area, t, h));
+        }
+        if found.nearest.is_none_or(|n| outside < n.0) {
+            found.nearest = Some((outside, t, h));
+        }
     }
 
     /// Every triangle within `tol` grid units of (x, z), those containing it
@@ -199,11 +205,25 @@ impl SurfaceLocator<'_> {
     }
 }
 
+/// What [`SurfaceLocator::locate`] has found so far: the containing
+/// triangle of largest area (area, triangle, height) and the nearest
+/// (distance, triangle, height).
+#[derive(Default)]
+struct Found {
+    inside: Option<(f64, u32, f64)>,
+    nearest: Option<(f64, u32, f64)>,
+}
+
 /// The bucket of coordinate `v` along an axis starting at `o`, of `n`
 /// buckets of `cell` grid units (clamped to the first and last).
+///
+/// The cast is the floor clamped at 0: it truncates toward zero, which is
+/// the floor for what is not negative, and saturates what is negative (or
+/// NaN) to 0. (`floor` is a call into libm on the baseline x86-64 target;
+/// the locator asks this of every point `verify` reads.)
 #[inline]
 fn bucket_index(v: f64, o: f64, cell: f64, n: usize) -> usize {
-    (((v - o) / cell).floor().max(0.0) as usize).min(n - 1)
+    (((v - o) / cell) as usize).min(n - 1)
 }
 
 /// Visits every grid point (column `j`, row `i`) of `rows` × `cols` (whole
@@ -439,6 +459,24 @@ mod tests {
         assert!((h - x).abs() < 1e-9, "extrapolated on h = x: {h}");
         // Beyond the tolerance, nothing.
         assert_eq!(loc.locate(5.0 + 1e-5, z, 1e-6), None);
+    }
+
+    /// `bucket_index` without `floor` gives what `floor`, clamped at 0, gave,
+    /// for values on and either side of every bucket edge, below the first
+    /// and past the last, and for NaN and the infinities.
+    #[test]
+    fn bucket_index_is_the_clamped_floor() {
+        let floor = |v: f64, o: f64, cell: f64, n: usize| (((v - o) / cell).floor().max(0.0) as usize).min(n - 1);
+        let (o, cell, n) = (-3.25, 1.414_213_562_373_095_1, 40);
+        for k in -5..50 {
+            let edge = o + k as f64 * cell;
+            for v in [edge, edge.next_down(), edge.next_up(), edge + 0.5 * cell, edge - 1e-9, edge + 1e-9] {
+                assert_eq!(bucket_index(v, o, cell, n), floor(v, o, cell, n), "{v}");
+            }
+        }
+        for v in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.0, f64::MAX, f64::MIN] {
+            assert_eq!(bucket_index(v, o, cell, n), floor(v, o, cell, n), "{v}");
+        }
     }
 
     /// `locate` and `near` agree on random meshes with holes, at points on,

@@ -1109,9 +1109,11 @@ fn check_morph(c: &ChunkFile, parent: &ParentSurface, spacing: [f64; 2], problem
 fn straddles(child: [MeshVertex; 3], parent: [MeshVertex; 3], tol: f64) -> bool {
     let [a, b, d] = child;
     let twice_area = ((b.x - a.x) * (d.z - a.z) - (d.x - a.x) * (b.z - a.z)).abs();
-    let side = |p: &MeshVertex, q: &MeshVertex| (p.x - q.x).hypot(p.z - q.z);
-    let longest = side(&a, &b).max(side(&b, &d)).max(side(&d, &a));
-    if twice_area <= tol * longest {
+    // Compared squared: grid coordinates are far from overflow, and no root
+    // is needed (this runs once per child triangle).
+    let side2 = |p: &MeshVertex, q: &MeshVertex| (p.x - q.x).powi(2) + (p.z - q.z).powi(2);
+    let longest2 = side2(&a, &b).max(side2(&b, &d)).max(side2(&d, &a));
+    if twice_area * twice_area <= tol * tol * longest2 {
         return false;
     }
     let [pa, pb, pd] = parent;
