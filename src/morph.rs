@@ -98,6 +98,23 @@ impl LocatorIndex {
         LocatorIndex { origin: (x0, z0), cell, nx, nz, starts, entries, boxes }
     }
 
+    /// The bucket (x, z) falls in: the one that holds every triangle
+    /// containing it.
+    #[inline]
+    fn bucket_at(&self, x: f64, z: f64) -> usize {
+        bucket_index(z, self.origin.1, self.cell, self.nz) * self.nx
+            + bucket_index(x, self.origin.0, self.cell, self.nx)
+    }
+
+    /// The buckets over the square of half-side `r` around (x, z), row by
+    /// row: between them they hold every triangle within `r` of the point.
+    fn buckets_near(&self, x: f64, z: f64, r: f64) -> impl Iterator<Item = usize> + '_ {
+        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.cell, n);
+        let columns = b(x - r, self.origin.0, self.nx)..=b(x + r, self.origin.0, self.nx);
+        (b(z - r, self.origin.1, self.nz)..=b(z + r, self.origin.1, self.nz))
+            .flat_map(move |bz| columns.clone().map(move |bx| bz * self.nx + bx))
+    }
+
     /// The entries of bucket `c`.
     #[inline]
     fn bucket(&self, c: usize) -> &[u32] {
@@ -120,10 +137,7 @@ impl SurfaceLocator<'_> {
     /// none, the nearest one within `tol` grid units. Returns it and the
     /// interpolated height there.
     pub fn locate(&self, x: f64, z: f64, tol: f64) -> Option<(u32, f64)> {
-        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.index.cell, n);
-        let (ox, oz) = self.index.origin;
-        let (nx, nz) = (self.index.nx, self.index.nz);
-        let own = b(z, oz, nz) * nx + b(x, ox, nx);
+        let own = self.index.bucket_at(x, z);
         // Only a triangle within the tolerance can be returned.
         let reach = tol.max(1e-6);
         let mut found = Found::default();
@@ -136,13 +150,9 @@ impl SurfaceLocator<'_> {
         // nearest within reach may lie wholly in a neighbouring bucket,
         // across a bucket edge less than `reach` away.
         if found.inside.is_none() {
-            for bz in b(z - reach, oz, nz)..=b(z + reach, oz, nz) {
-                for bx in b(x - reach, ox, nx)..=b(x + reach, ox, nx) {
-                    if bz * nx + bx != own {
-                        for &t in self.index.bucket(bz * nx + bx) {
-                            self.weigh(t, x, z, reach, &mut found);
-                        }
-                    }
+            for c in self.index.buckets_near(x, z, reach).filter(|&c| c != own) {
+                for &t in self.index.bucket(c) {
+                    self.weigh(t, x, z, reach, &mut found);
                 }
             }
         }
@@ -182,22 +192,19 @@ impl SurfaceLocator<'_> {
     /// necessarily the one [`Self::locate`] picks).
     pub fn near(&self, x: f64, z: f64, tol: f64) -> Vec<(u32, f64)> {
         let tol = tol.max(1e-6);
-        let b = |v: f64, o: f64, n: usize| bucket_index(v, o, self.index.cell, n);
         let mut found: Vec<(u32, f64)> = Vec::new();
-        for bz in b(z - tol, self.index.origin.1, self.index.nz)..=b(z + tol, self.index.origin.1, self.index.nz) {
-            for bx in b(x - tol, self.index.origin.0, self.index.nx)..=b(x + tol, self.index.origin.0, self.index.nx) {
-                for &t in self.index.bucket(bz * self.index.nx + bx) {
-                    if self.index.far(t, x, z, tol) {
-                        continue;
-                    }
-                    let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-                    if surely_beyond(&a, &p, &q, x, z, tol) {
-                        continue;
-                    }
-                    let (outside, h) = barycentric(&a, &p, &q, x, z);
-                    if outside <= tol && !found.iter().any(|f| f.0 == t) {
-                        found.push((t, h));
-                    }
+        for c in self.index.buckets_near(x, z, tol) {
+            for &t in self.index.bucket(c) {
+                if self.index.far(t, x, z, tol) {
+                    continue;
+                }
+                let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+                if surely_beyond(&a, &p, &q, x, z, tol) {
+                    continue;
+                }
+                let (outside, h) = barycentric(&a, &p, &q, x, z);
+                if outside <= tol && !found.iter().any(|f| f.0 == t) {
+                    found.push((t, h));
                 }
             }
         }
@@ -336,6 +343,22 @@ mod tests {
         MeshVertex { x, z, h, ph: h }
     }
 
+    /// A xorshift64 sequence from `seed`: the tests' repeatable randomness.
+    fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        }
+    }
+
+    /// Draws in [0, 1) in steps of 10⁻⁶, from [`xorshift`].
+    fn unit_draws(seed: u64) -> impl FnMut() -> f64 {
+        let mut next = xorshift(seed);
+        move || (next() % 1_000_000) as f64 / 1_000_000.0
+    }
+
     /// `points_near_triangle` visits exactly the points the bounding-box
     /// scan it replaced did (every point of the box within the tolerance,
     /// by `barycentric`), in the same order and with the same heights: with
@@ -346,13 +369,7 @@ mod tests {
     #[test]
     fn rows_visit_what_the_bounding_box_did() {
         let (w, h) = (40.0f64, 33.0f64);
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         let unit = |r: u64| (r % 1_000_000) as f64 / 1_000_000.0;
         let box_scan = |t: &[MeshVertex; 3], rows: (f64, f64), cols: (f64, f64), tol: f64| {
             let mut out = Vec::new();
@@ -485,13 +502,7 @@ mod tests {
     /// answers with one of those.
     #[test]
     fn locate_answers_where_near_finds_a_triangle() {
-        let mut seed = 0x51f1_5eed_0bad_cafeu64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed % 1_000_000) as f64 / 1_000_000.0
-        };
+        let mut next = unit_draws(0x51f1_5eed_0bad_cafe);
         let (mut answered, mut refused) = (0, 0);
         for _ in 0..40 {
             // A 12 × 9 grid of jittered vertices, a third of its triangles
@@ -572,13 +583,7 @@ mod tests {
     /// mesher use.
     #[test]
     fn surely_beyond_turns_away_only_what_barycentric_puts_outside() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed % 1_000_000) as f64 / 1_000_000.0
-        };
+        let mut next = unit_draws(0x9e37_79b9_7f4a_7c15);
         let (mut turned, mut beyond) = (0, 0);
         for n in 0..200_000 {
             let o = (4000.0 * next(), 4000.0 * next());
