@@ -163,17 +163,12 @@ impl SurfaceLocator<'_> {
     /// Weighs triangle `t` for [`Self::locate`] at (x, z): whether it
     /// contains the point with a larger area than the best so far, or is
     /// nearer than the nearest so far. Farther than `reach` it is neither
-    /// inside nor the nearest within reach, and is turned away unmeasured.
+    /// inside nor the nearest within reach ([`Self::measure`]).
     #[inline(always)]
     fn weigh(&self, t: u32, x: f64, z: f64, reach: f64, found: &mut Found) {
-        if self.index.far(t, x, z, reach) {
+        let Some(([a, p, q], outside, h)) = self.measure(t, x, z, reach) else {
             return;
-        }
-        let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-        if surely_beyond(&a, &p, &q, x, z, reach) {
-            return;
-        }
-        let (outside, h) = barycentric(&a, &p, &q, x, z);
+        };
         if !outside.is_finite() {
             return;
         }
@@ -186,6 +181,22 @@ impl SurfaceLocator<'_> {
         }
     }
 
+    /// Triangle `t`'s corners, how far (x, z) lies outside it and its
+    /// plane's height there; `None`, unmeasured, where its bounding box or
+    /// one edge's line puts the point surely farther than `reach`.
+    #[inline(always)]
+    fn measure(&self, t: u32, x: f64, z: f64, reach: f64) -> Option<([MeshVertex; 3], f64, f64)> {
+        if self.index.far(t, x, z, reach) {
+            return None;
+        }
+        let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
+        if surely_beyond(&a, &p, &q, x, z, reach) {
+            return None;
+        }
+        let (outside, h) = barycentric(&a, &p, &q, x, z);
+        Some(([a, p, q], outside, h))
+    }
+
     /// Every triangle within `tol` grid units of (x, z), those containing it
     /// included, each with its plane's height there. A point read back with
     /// rounding `tol` truly lies in one of them (on a crease, not
@@ -195,15 +206,10 @@ impl SurfaceLocator<'_> {
         let mut found: Vec<(u32, f64)> = Vec::new();
         for c in self.index.buckets_near(x, z, tol) {
             for &t in self.index.bucket(c) {
-                if self.index.far(t, x, z, tol) {
-                    continue;
-                }
-                let [a, p, q] = self.tris[t as usize].map(|k| self.verts[k as usize]);
-                if surely_beyond(&a, &p, &q, x, z, tol) {
-                    continue;
-                }
-                let (outside, h) = barycentric(&a, &p, &q, x, z);
-                if outside <= tol && !found.iter().any(|f| f.0 == t) {
+                if let Some((_, outside, h)) = self.measure(t, x, z, tol)
+                    && outside <= tol
+                    && !found.iter().any(|f| f.0 == t)
+                {
                     found.push((t, h));
                 }
             }
