@@ -782,10 +782,10 @@ fn check_texture(
     for (role, prim) in std::iter::once(("surface", &c.surface)).chain(c.skirt.iter().map(|s| ("skirt", s))) {
         for &(set, texels) in &sets {
             let uv = if set == 0 { &prim.uv } else { &prim.uv1 };
-            // u16 normalized coordinates round by half of 1/65535, and a
-            // cut point's position by half a step: at most 1/65535 of the
-            // footprint (a level's step is ≤ 2 · its widest footprint / 65535).
-            let rounding = c.quantization_m.map_or(0.0, |_| 1.5 / 65535.0);
+            // u16 normalized coordinates round by half of 1/65535. (The
+            // coordinate is made from the position as written, on the grid:
+            // `Frame::on_grid`.)
+            let rounding = c.quantization_m.map_or(0.0, |_| 0.5 / 65535.0);
             if let Some(p) = check_uv(prim, uv, c.footprint, ex.spacing_m, texels, rounding) {
                 problems.push(format!("{role} TEXCOORD_{set}: {p}"));
             }

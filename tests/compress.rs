@@ -385,6 +385,29 @@ fn cut_points_rounded_to_the_quantize_grid_keep_delta_on_steep_ground() {
     }
 }
 
+/// A cut point the mesher leaves off the quantize grid is written on it,
+/// and its texture coordinate maps that written position. It used to map
+/// the point before rounding, up to half a step away: on 32-cell leaves
+/// the step is 1/256 of a cell (the cap), more than the 1/65 535 of the
+/// footprint `verify` then allowed for it. Mount St Helens here, at 5 m,
+/// wrote 5 such coordinates; Sierra 3 × 3 at 5 m with 32-cell leaves in
+/// `meshopt-v1` failed `verify`. `verify` now allows only the coordinate's
+/// own u16 rounding, which this build passes.
+#[test]
+fn texture_coordinates_map_cut_points_where_the_file_puts_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let config = Config { max_error_m: 5.0, leaf_cells: Some(32), compress: Compress::Quantize, ..Config::default() };
+    let opts = BuildOptions {
+        texture: TextureSource::Generated,
+        ..with_config(&fixture("mount_st_helens_30m.tif"), &out, config)
+    };
+    build(&opts).unwrap();
+    let v = verified(&out);
+    let textured: usize = v.texture.expect("textured").levels.values().map(|l| l.chunks).sum();
+    assert!(textured > 100, "{textured} textured chunks checked");
+}
+
 #[test]
 fn normal_bits_outside_2_to_8_are_refused() {
     for (bits, ok) in [(1, false), (2, true), (8, true), (9, false)] {

@@ -372,6 +372,21 @@ impl Frame {
         ]
     }
 
+    /// World position `p` where the file puts it: moved sideways to the
+    /// nearest step where it is off the grid (a cut point the mesher left
+    /// off it), else `p` itself. A texture coordinate is made from this, so
+    /// that it maps the point the file draws.
+    pub fn on_grid(&self, p: &[f64; 3]) -> [f64; 3] {
+        let mut q = *p;
+        for (axis, c) in [(0, 0), (2, 1)] {
+            let steps = (p[axis] / self.spacing_m[c] - self.corner[c]) * self.k;
+            if steps != steps.round() {
+                q[axis] = (self.corner[c] + steps.round() / self.k) * self.spacing_m[c];
+            }
+        }
+        q
+    }
+
     /// A world position as u16 steps (checked in [`Quantization::frame`]).
     pub fn position(&self, p: &[f64; 3]) -> [u16; 3] {
         self.steps(p).map(|v| v as u16)

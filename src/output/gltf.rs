@@ -119,8 +119,13 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
         .iter()
         .map(|p| {
             let n = p.positions.len();
+            // Quantized, each coordinate maps the position as written.
             let uv = |img: &TileImage| -> Vec<[f32; 2]> {
-                p.positions.iter().map(|q| texcoord(q, chunk.footprint, ctx.spacing_m, img.texels)).collect()
+                p.positions
+                    .iter()
+                    .map(|q| frame.as_ref().map_or(*q, |f| f.on_grid(q)))
+                    .map(|q| texcoord(&q, chunk.footprint, ctx.spacing_m, img.texels))
+                    .collect()
             };
             PrimData {
                 part: p,
