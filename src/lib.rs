@@ -22,5 +22,7 @@ pub mod output;
 pub mod pipeline;
 mod progress;
 pub mod quadtree;
+#[cfg(test)]
+mod test_rng;
 pub mod texture;
 pub mod verify;

@@ -344,25 +344,10 @@ pub fn barycentric(a: &MeshVertex, b: &MeshVertex, c: &MeshVertex, x: f64, z: f6
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::{unit_draws, xorshift};
 
     fn v(x: f64, z: f64, h: f64) -> MeshVertex {
         MeshVertex { x, z, h, ph: h }
-    }
-
-    /// A xorshift64 sequence from `seed`: the tests' repeatable randomness.
-    fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
-        move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        }
-    }
-
-    /// Draws in [0, 1) in steps of 10⁻⁶, from [`xorshift`].
-    fn unit_draws(seed: u64) -> impl FnMut() -> f64 {
-        let mut next = xorshift(seed);
-        move || (next() % 1_000_000) as f64 / 1_000_000.0
     }
 
     /// `points_near_triangle` visits exactly the points the bounding-box

@@ -584,13 +584,8 @@ mod tests {
     /// off-grid points go to robust.
     #[test]
     fn in_circle_has_the_exact_sign() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = |m: u64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed % m) as f64
-        };
+        let mut draw = crate::test_rng::xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut next = |m: u64| (draw() % m) as f64;
         let c = |x: f64, y: f64| Coord { x, y };
         let sign = |v: f64| {
             if v > 0.0 {
