@@ -1203,8 +1203,8 @@ fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: [f64; 2]) -
     let unmatched = |x: &[[f64; 3]], y: &[[f64; 3]]| -> Option<String> {
         x.iter().find_map(|p| {
             let from = y.partition_point(|q| q[along] < p[along] - tol_along);
-            let place: Vec<&[f64; 3]> = y[from..].iter().take_while(|q| q[along] <= p[along] + tol_along).collect();
-            match place.iter().min_by(|q, r| (q[1] - p[1]).abs().total_cmp(&(r[1] - p[1]).abs())) {
+            let place = y[from..].iter().take_while(|q| q[along] <= p[along] + tol_along);
+            match place.min_by(|q, r| (q[1] - p[1]).abs().total_cmp(&(r[1] - p[1]).abs())) {
                 None => {
                     Some(format!("border vertex {p:?} has none at its place across the shared edge (a T-junction)"))
                 }

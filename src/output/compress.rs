@@ -365,11 +365,14 @@ impl Frame {
     /// A world position in whole steps from the translation (as f64). x and
     /// z go through grid coordinates, so samples land on whole steps exactly.
     fn steps(&self, p: &[f64; 3]) -> [f64; 3] {
-        [
-            ((p[0] / self.spacing_m[0] - self.corner[0]) * self.k).round(),
-            (p[1] / self.scale[1]).round() - self.lowest,
-            ((p[2] / self.spacing_m[1] - self.corner[1]) * self.k).round(),
-        ]
+        let [x, z] = self.horizontal_steps(p);
+        [x.round(), (p[1] / self.scale[1]).round() - self.lowest, z.round()]
+    }
+
+    /// `p`'s x and z in horizontal steps from the corner, before rounding:
+    /// whole numbers where `p` is on the grid.
+    fn horizontal_steps(&self, p: &[f64; 3]) -> [f64; 2] {
+        [0, 1].map(|c| (p[2 * c] / self.spacing_m[c] - self.corner[c]) * self.k)
     }
 
     /// World position `p` where the file puts it: moved sideways to the
@@ -378,10 +381,9 @@ impl Frame {
     /// that it maps the point the file draws.
     pub fn on_grid(&self, p: &[f64; 3]) -> [f64; 3] {
         let mut q = *p;
-        for (axis, c) in [(0, 0), (2, 1)] {
-            let steps = (p[axis] / self.spacing_m[c] - self.corner[c]) * self.k;
+        for (c, steps) in self.horizontal_steps(p).into_iter().enumerate() {
             if steps != steps.round() {
-                q[axis] = (self.corner[c] + steps.round() / self.k) * self.spacing_m[c];
+                q[2 * c] = (self.corner[c] + steps.round() / self.k) * self.spacing_m[c];
             }
         }
         q
