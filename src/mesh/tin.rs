@@ -397,7 +397,80 @@ impl Tin {
         self.set(t1, [v, b, c], [3 * u, t_1, 3 * t + 1], [fe, f_1, false]);
         self.set(u, [b, v, d], [3 * t1, 3 * u1 + 2, u_2], [fe, false, g_2]);
         self.set(u1, [v, a, d], [3 * t, u_1, 3 * u + 1], [fe, g_1, false]);
-        self.legalize(&[3 * t + 2, 3 * t1 + 1, 3 * u + 2, 3 * u1 + 1]);
+        let (pa, pb, pd) = (self.coord(a), self.coord(b), self.coord(d));
+        if !(pd.x == pa.x && pd.y == pa.y || pd.x == pb.x && pd.y == pb.y) {
+            self.legalize(&[3 * t + 2, 3 * t1 + 1, 3 * u + 2, 3 * u1 + 1]);
+            return;
+        }
+        let mut around = vec![t, t1, u, u1];
+        self.unwall(v, &mut around);
+        let edges: Vec<u32> = around
+            .iter()
+            .filter_map(|&t| (0..3).map(|k| 3 * t + k).find(|&e| self.tv[e as usize] == v).map(next))
+            .collect();
+        self.legalize(&edges);
+    }
+
+    /// Where the edge just split at `v` bordered a flat triangle (two
+    /// corners at one point: crossings that a quantized file places on one
+    /// lattice point, each its own vertex), one half of that triangle has
+    /// three distinct corners in a line, `v` between the other two: a wall
+    /// with no area, across which the surface is two-valued (Sierra at 5 m,
+    /// 32-cell leaves, `quantize`: a child's morph target read the wall's
+    /// other height, 10 m off). Such a wall is flipped with the triangle
+    /// across its long edge, which `v` then splits, so that edge keeps its
+    /// fixed flag on both halves; again while the triangle across was flat
+    /// too. `around`: the triangles to look at, to which the flips' are
+    /// added.
+    fn unwall(&mut self, v: u32, around: &mut Vec<u32>) {
+        let mut k = 0;
+        while k < around.len() {
+            let t = around[k];
+            k += 1;
+            let Some(e) = (0..3).map(|k| 3 * t + k).find(|&e| self.tv[e as usize] == v) else { continue };
+            // The long edge, opposite v, from x to y.
+            let a = next(e);
+            let (x, y) = self.ends(a);
+            let (pv, px, py) = (self.coord(v), self.coord(x), self.coord(y));
+            let distinct = |p: Coord<f64>, q: Coord<f64>| p.x != q.x || p.y != q.y;
+            let wall = orient2d(pv, px, py) == 0.0 && distinct(pv, px) && distinct(px, py) && distinct(py, pv);
+            let b = self.twin[a as usize];
+            if !wall || b == NONE {
+                continue;
+            }
+            let long = self.fixed[a as usize];
+            let (t, u) = self.flip(a);
+            // The wall's short edges, v–x in t and y–v in u, now lie along
+            // the long one.
+            for h in [3 * t, 3 * u + 1] {
+                if long {
+                    self.fixed[h as usize] = true;
+                    let tw = self.twin[h as usize];
+                    if tw != NONE {
+                        self.fixed[tw as usize] = true;
+                    }
+                }
+            }
+            around.push(u);
+            k -= 1; // t holds v again: look at it anew
+        }
+    }
+
+    /// Flips the edge of half-edge `a` (not on the border): the triangles
+    /// (pr, pl, p0) on `a` and (pl, pr, p1) across become (p0, pr, p1) and
+    /// (p1, pl, p0), in the same slots, the new edge p1–p0 free. Returns the
+    /// two slots.
+    fn flip(&mut self, a: u32) -> (u32, u32) {
+        let b = self.twin[a as usize];
+        let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
+        let (pr, pl, p0) = (self.tv[a as usize], self.tv[an as usize], self.tv[ap as usize]);
+        let p1 = self.tv[bp as usize];
+        let (t, u) = (a / 3, b / 3);
+        let tw = [self.twin[an as usize], self.twin[ap as usize], self.twin[bn as usize], self.twin[bp as usize]];
+        let fx = [self.fixed[an as usize], self.fixed[ap as usize], self.fixed[bn as usize], self.fixed[bp as usize]];
+        self.set(t, [p0, pr, p1], [tw[1], tw[2], 3 * u + 2], [fx[1], fx[2], false]);
+        self.set(u, [p1, pl, p0], [tw[3], tw[0], 3 * t + 2], [fx[3], fx[0], false]);
+        (t, u)
     }
 
     /// Lawson flips from the given half-edges, each opposite the vertex just
@@ -412,18 +485,12 @@ impl Tin {
             if b == NONE || self.fixed[a as usize] {
                 continue;
             }
-            let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
-            let (pr, pl, p0) = (self.tv[a as usize], self.tv[an as usize], self.tv[ap as usize]);
-            let p1 = self.tv[bp as usize];
+            let (pr, pl, p0) = (self.tv[a as usize], self.tv[next(a) as usize], self.tv[prev(a) as usize]);
+            let p1 = self.tv[prev(b) as usize];
             if in_circle(self.coord(pr), self.coord(pl), self.coord(p0), self.coord(p1)) <= 0.0 {
                 continue;
             }
-            let (t, u) = (a / 3, b / 3);
-            let tw = [self.twin[an as usize], self.twin[ap as usize], self.twin[bn as usize], self.twin[bp as usize]];
-            let fx =
-                [self.fixed[an as usize], self.fixed[ap as usize], self.fixed[bn as usize], self.fixed[bp as usize]];
-            self.set(t, [p0, pr, p1], [tw[1], tw[2], 3 * u + 2], [fx[1], fx[2], false]);
-            self.set(u, [p1, pl, p0], [tw[3], tw[0], 3 * t + 2], [fx[3], fx[0], false]);
+            let (t, u) = self.flip(a);
             stack.push(3 * t + 1);
             stack.push(3 * u);
         }
@@ -740,5 +807,48 @@ mod tests {
             .collect();
         assert_eq!(across.len(), 2);
         assert!(across.iter().all(|&h| joined.fixed[h] && [b, e].contains(&joined.tv[h])));
+    }
+
+    /// Sierra 3 × 3 at 5 m with 32-cell leaves in `quantize` failed `verify`
+    /// (a morph target 10.5 m off its parent): three parent edges from one
+    /// vertex crossed a dividing line within one lattice step, so their cut
+    /// points sat at one point as three vertices, with flat triangles
+    /// between them; a sample exactly on one of those edges split it, and
+    /// the flat triangle beside it became a wall, three distinct corners in
+    /// a line, over which the surface had two heights. The split now flips
+    /// the wall away, on through every flat triangle in the fan, and keeps
+    /// the edges along the spokes fixed.
+    #[test]
+    fn splitting_an_edge_beside_flat_triangles_leaves_no_wall() {
+        // A, B and C are one point; spokes to X; `top` and `w` close the fan.
+        let pts = vec![v(0.0, 0.0), v(0.0, 0.0), v(0.0, 0.0), v(4.0, 4.0), v(0.0, 4.0), v(4.0, 0.0)];
+        let (a, b, c, x, top, w) = (0, 1, 2, 3, 4, 5);
+        let tris = [[a, x, top], [x, a, b], [x, b, c], [c, w, x]];
+        let mut tin = Tin::from_soup(
+            pts,
+            &tris,
+            &[[true, false, false], [true, false, true], [true, false, true], [false, false, true]],
+        );
+        let p = Coord { x: 2.0, y: 2.0 };
+        let Position::Edge(e) = tin.locate_from(0, p) else { panic!("(2, 2) lies on the spoke A–X") };
+        let m = tin.add_vertex(v(p.x, p.y));
+        tin.split_edge(e, m);
+        let same = |p: u32, q: u32| tin.coord(p).x == tin.coord(q).x && tin.coord(p).y == tin.coord(q).y;
+        let mut area = 0.0;
+        for t in 0..tin.num_triangles() as u32 {
+            let [p, q, r] = tin.triangle(t);
+            let o = orient2d(tin.coord(p), tin.coord(q), tin.coord(r));
+            assert!(o >= 0.0, "triangle {:?} turned over", tin.corners(t));
+            assert!(o > 0.0 || same(p, q) || same(q, r) || same(r, p), "a wall: {:?}", tin.corners(t));
+            area += o / 2.0;
+        }
+        assert_eq!(area, 16.0, "the fan's area, covered once");
+        // The new vertex joins the far corners on both sides, and every
+        // spoke's half towards the fan's point stays fixed, as does X–m.
+        assert!(tin.find_edge(m, top).is_some() && tin.find_edge(m, w).is_some());
+        for end in [a, b, c, x] {
+            let h = tin.find_edge(m, end).unwrap_or_else(|| panic!("no edge from the new vertex to {end}"));
+            assert!(tin.is_fixed(h), "edge to {end} is not fixed");
+        }
     }
 }
