@@ -1084,12 +1084,21 @@ fn check_morph(c: &ChunkFile, parent: &ParentSurface, spacing: [f64; 2], problem
         // rounding away, says nothing of how far the target is (Sierra
         // N36W119 with `quantize`: 103 m "gaps" beside clustered cut points,
         // where the vertex sat exactly on the parent surface).
+        // A sliver's plane is not read from its gradient (which says
+        // nothing a rounding away, see above) but from the heights it takes
+        // within rounding of the vertex: the target may be any of them (DFW
+        // at 2 m, 16-cell leaves: a parent sliver 6·10⁻⁵ cells wide rose
+        // 5 m across, and the child's vertex on it read 0.1 m "off").
+        let target = v.h + dy;
         let best = loc
             .near(v.x, v.z, round_grid)
             .into_iter()
             .map(|(t, h)| {
-                let g = (v.h + dy - h).abs();
-                (g - allowed(t), g)
+                let g = (target - h).abs();
+                let corners = p.surface.triangles[t as usize].map(|i| pv[i as usize]);
+                let within = heights_within(corners, (v.x, v.z), [rx / spacing[0], rz / spacing[1]])
+                    .map_or(f64::INFINITY, |(lo, hi)| (lo - target).max(target - hi).max(0.0) - 1e-5 - 2.0 * ry);
+                ((g - allowed(t)).min(within), g)
             })
             .reduce(|a, b| (a.0.min(b.0), a.1.min(b.1)));
         match best {
@@ -1166,6 +1175,36 @@ fn f32_rounding(a: &ChunkFile, b: &ChunkFile) -> [f64; 3] {
 /// f32 files): how far each may have rounded one vertex.
 fn half_steps(a: &ChunkFile, b: &ChunkFile, axis: usize) -> f64 {
     [a, b].iter().map(|c| c.quantization_m.map_or(0.0, |s| s[axis] / 2.0)).sum()
+}
+
+/// The lowest and highest heights triangle `t` (grid units) takes within
+/// the box of half-widths `half` (grid units) around `at`, or `None` if
+/// none of it lies there: its plane's extremes over the triangle clipped
+/// to the box, at the clipped polygon's corners, each interpolated along a
+/// segment (no barycentric weights, which a sliver makes ill-conditioned).
+fn heights_within(t: [MeshVertex; 3], at: (f64, f64), half: [f64; 2]) -> Option<(f64, f64)> {
+    let mut poly: Vec<[f64; 3]> = t.iter().map(|v| [v.x, v.z, v.h]).collect();
+    let sides =
+        [(0, at.0 - half[0], 1.0), (0, at.0 + half[0], -1.0), (1, at.1 - half[1], 1.0), (1, at.1 + half[1], -1.0)];
+    for (axis, bound, sign) in sides {
+        let inside = |p: &[f64; 3]| sign * (p[axis] - bound) >= 0.0;
+        let mut out = Vec::with_capacity(poly.len() + 1);
+        for (k, p) in poly.iter().enumerate() {
+            let q = &poly[(k + 1) % poly.len()];
+            if inside(p) {
+                out.push(*p);
+            }
+            if inside(p) != inside(q) {
+                let s = (bound - p[axis]) / (q[axis] - p[axis]);
+                out.push([0, 1, 2].map(|c| p[c] + s * (q[c] - p[c])));
+            }
+        }
+        poly = out;
+        if poly.is_empty() {
+            return None;
+        }
+    }
+    Some(poly.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2]))))
 }
 
 /// Gradient `[∂h/∂x, ∂h/∂z]` (m per m) of a triangle given in grid coordinates.
@@ -1470,5 +1509,27 @@ mod tests {
         let mut seen = Vec::new();
         assert!(!scan_written(&hf, &over, footprint, |i, j, _| seen.push((i, j))));
         assert_eq!(seen, [(255, 435)]);
+    }
+
+    /// DFW at 2 m with 16-cell leaves failed `verify` (a morph target
+    /// 0.099 m "off"): the parent 3/1/6 holds a sliver 6·10⁻⁵ cells wide
+    /// along x + z = 358 whose plane rises 5 m across it, and the child's
+    /// vertex (56, 302), on it, took the height of its upper edge. Within
+    /// rounding of the vertex the sliver takes every height from its lower
+    /// edge's to its upper edge's, and the target is one of them.
+    #[test]
+    fn a_morph_target_on_a_steep_parent_sliver_is_on_the_parent_surface() {
+        let h = |x: f64, z: f64, h: f64| MeshVertex { x, z, h, ph: 0.0 };
+        let sliver =
+            [h(53.0, 305.0, 240.0), h(67.999_913_671_474_19, 290.0, 248.000_085_830_688_48), h(48.0, 310.0, 229.0)];
+        let at = (56.0, 301.999_982);
+        let (lo, hi) = heights_within(sliver, at, [2e-5, 2e-5]).expect("the sliver passes the vertex");
+        assert!(lo < 237.0 && hi > 241.6, "{lo}..{hi}");
+        // Away from the sliver, nothing; inside a broad triangle, its plane
+        // a rounding either way.
+        assert_eq!(heights_within(sliver, (56.0, 300.0), [2e-5, 2e-5]), None);
+        let flat = [h(0.0, 0.0, 0.0), h(10.0, 0.0, 10.0), h(0.0, 10.0, 0.0)];
+        let (lo, hi) = heights_within(flat, (5.0, 2.0), [0.01, 0.01]).unwrap();
+        assert!((lo - 4.99).abs() < 1e-9 && (hi - 5.01).abs() < 1e-9, "{lo}..{hi}");
     }
 }

@@ -762,3 +762,25 @@ fn a_line_sample_exactly_delta_off_beside_a_cut_corner_builds() {
     assert!(b.report.levels.iter().all(|l| l.max_error_m <= l.delta_m), "{:#?}", b.report.levels);
     assert_eq!(leaf(&b).max_error_m, 1.0, "integer heights: some sample is exactly 1 m off");
 }
+
+/// DFW at 2 m with 16-cell leaves failed `verify` ("morph target misses the
+/// parent 3/1/6 surface by 0.099245 m"): the parent holds a sliver
+/// 6·10⁻⁵ cells wide whose plane rises 5 m across it, and the child's
+/// vertex on it took one of the heights the sliver takes within rounding of
+/// it. `verify` now reads a sliver's heights there rather than its
+/// gradient, which it had set aside as meaningless.
+#[test]
+fn a_morph_target_on_a_steep_parent_sliver_verifies() {
+    survives(&crate::common::fixture("dfw_texas_srtm3.tif"), config(2.0, 16));
+}
+
+/// France–Italy at 0.5 m with 16-cell leaves failed `verify` ("leaf error
+/// 0.5000 m exceeds max_error_m 0.5"): a chunk at δ 1 m ended the tree
+/// because every sample was within 0.5 m of it, one of them a dividing-line
+/// sample exactly 0.5 m off beside a cut point, which the file rounds
+/// (0.5000005 m as written). Such a sample now counts with the cut points,
+/// whose share of max_error leaves room for that, and the chunk is refined.
+#[test]
+fn a_line_sample_beside_a_cut_point_does_not_end_the_tree_over_max_error() {
+    survives(&crate::common::fixture("france_italy_etopo2.tif"), config(0.5, 16));
+}

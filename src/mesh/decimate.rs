@@ -1686,11 +1686,19 @@ fn finish(
                 // samples, so it may be exactly δ off even in a triangle
                 // with a cut corner (it lies on the exact edge, where that
                 // corner weighs nothing). It counts in the lattice class,
-                // whose δ reading is snapped.
+                // whose δ reading is snapped. Where an end of its interval
+                // is a cut point the file rounds, it counts with the cut
+                // points: France–Italy at 0.5 m, 16-cell leaves, f32: a
+                // chunk at δ 1 m ended the tree with a line sample 0.5 m off
+                // beside a cut point, 0.5000005 m as written.
+                let (row, col) = (|i: u32, v: &V| v.z == f64::from(i), |j: u32, v: &V| v.x == f64::from(j));
+                let rounds_at = |v: &V| off_lattice(v.x, lattice) || off_lattice(v.z, lattice);
                 scan_triangle(grid, spec.footprint, &tri, |i, j, e| {
                     if !lines.is_vertex(i, j) {
-                        let on_line = lines.row_is_line(i) || lines.col_is_line(j);
-                        let class = if rounds && !on_line { &mut max_err_cut } else { &mut max_err };
+                        let (on_row, on_col) = (lines.row_is_line(i), lines.col_is_line(j));
+                        let cut_end = tri.iter().any(|v| rounds_at(v) && (on_row && row(i, v) || on_col && col(j, v)));
+                        let near_cut = rounds && (!(on_row || on_col) || cut_end);
+                        let class = if near_cut { &mut max_err_cut } else { &mut max_err };
                         *class = class.max(if rounded { e + moved(i, j) } else { e });
                     }
                     f64::NEG_INFINITY // every sample counts
