@@ -42,7 +42,7 @@ use robust::Coord;
 
 use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex, chain_ties};
-use crate::morph::barycentric;
+use crate::morph::{SurfaceLocator, barycentric};
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
@@ -266,14 +266,15 @@ fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Re
     let (relief, magnitude) = footprint_relief(grid, spec.footprint);
     let target =
         Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice(), spec.height_step);
-    let nested = spec.parent.is_some();
+    let parent_locator = spec.parent.filter(|_| spec.lattice() > 1.0).map(|p| p.locator());
+    let nested = Targeting { nested: spec.parent.is_some(), parent: parent_locator.as_ref() };
     let (mx, mz) = match spec.dividing_lines {
         DividingLines::Children | DividingLines::Parts => (midpoint((x0, x1)), midpoint((z0, z1))),
         DividingLines::None => (None, None),
     };
 
     // Steps 1 and 3a: the parent's triangles, cut along the dividing lines.
-    let (mut tin, origin) = initial_tin(grid, spec, mx, mz);
+    let (mut tin, origin) = initial_tin(grid, spec, mx, mz, nested);
 
     // Steps 2 and 3b: borders, then dividing lines, refined in 1-D. Their
     // target takes its f32 margin from the whole grid's relief, not the
@@ -316,12 +317,12 @@ fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Re
     // Step 5 comes with step 4: a chunk filled by parts thins each part.
     let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
         true if thinning == Thinning::Joined && spec.thin => {
-            let (mut tin, mut lines, scans) = insert_by_parts(grid, spec, target, &tin, lines, &start, false)?;
+            let (mut tin, mut lines, scans) = insert_by_parts(grid, spec, target, &tin, lines, &start, false, nested)?;
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans };
             thin(&mut tin, &mut lines, &mut queue);
             (tin, lines, queue.scans)
         }
-        true => insert_by_parts(grid, spec, target, &tin, lines, &start, spec.thin)?,
+        true => insert_by_parts(grid, spec, target, &tin, lines, &start, spec.thin, nested)?,
         false => {
             let (mut tin, mut lines) = (tin, lines);
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
@@ -346,7 +347,7 @@ fn insert_samples(
     lines: &mut Lines,
     queue: &mut Queue,
     start: &[Option<TriangleScan>],
-    nested: bool,
+    nested: Targeting,
     shared: Option<(usize, &AtomicUsize)>,
 ) -> Result<(), MeshError> {
     let grid = queue.grid;
@@ -613,8 +614,8 @@ fn insert_by_parts(
     mut lines: Lines,
     start: &[Option<TriangleScan>],
     thin_parts: bool,
+    nested: Targeting,
 ) -> Result<(Tin, Lines, Vec<Scan>), MeshError> {
-    let nested = spec.parent.is_some();
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let (mx, mz) = (midpoint((x0, x1)), midpoint((z0, z1)));
     let n0 = tin.pts.len();
@@ -872,7 +873,13 @@ struct Soup {
 /// The starting triangulation: the parent's triangles inside the footprint
 /// with every parent edge fixed (the top level: its four corners), cut along
 /// the dividing lines, whose pieces are fixed too.
-fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>) -> (Tin, Vec<u32>) {
+fn initial_tin(
+    grid: &Window,
+    spec: &ChunkSpec,
+    mx: Option<u32>,
+    mz: Option<u32>,
+    nested: Targeting,
+) -> (Tin, Vec<u32>) {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let mut soup = match spec.parent {
         Some(p) => {
@@ -928,10 +935,10 @@ fn initial_tin(grid: &Window, spec: &ChunkSpec, mx: Option<u32>, mz: Option<u32>
             Soup { pts, tris, fixed: vec![[false; 3]; count], origin: vec![u32::MAX; count] }
         }
     };
-    let nested = spec.parent.is_some();
+    let inherited = soup.pts.len();
     for (vertical, line) in [(true, mx), (false, mz)] {
         if let Some(coord) = line {
-            cut_along_line(&mut soup, grid, Line { vertical, coord }, nested, spec.lattice());
+            cut_along_line(&mut soup, grid, Line { vertical, coord }, (nested, inherited), spec.lattice());
         }
     }
     (Tin::from_soup(soup.pts, &soup.tris, &soup.fixed), soup.origin)
@@ -956,15 +963,18 @@ struct Line {
 /// it only at write time moved it by up to half a step after the mesher had
 /// judged the triangles around it: on steep ground, next to a sliver of the
 /// parent, that tilted them far past δ (California at 1 m: 151 chunks over
-/// δ as written, up to 10 m at δ 1 m). The morph target stays the parent's
-/// height at the exact crossing, so the pieces' morph planes are the parent
-/// triangle's to within the slope times half a step, as `verify` allows.
+/// δ as written, up to 10 m at δ 1 m). The morph target of a crossing of a
+/// parent edge stays the parent's height at the exact crossing, so the
+/// pieces' morph planes are the parent triangle's to within the slope times
+/// half a step, as `verify` allows; a crossing of a piece edge (the second
+/// line's, across the first's pieces) and every vertex placed later against
+/// a cut point take the parent's height where they are ([`Targeting`]).
 /// Crossings closer together than a step (a fan of parent edges from a
 /// vertex just off the line) land on one point as separate vertices with
 /// flat pieces between them, as the file would draw them anyway; a crossing
 /// whose move would turn a piece over tries the other neighbouring step,
 /// then stays where it is and keeps the mesher's margin.
-fn cut_along_line(soup: &mut Soup, grid: &Window, line: Line, nested: bool, lattice: f64) {
+fn cut_along_line(soup: &mut Soup, grid: &Window, line: Line, nested: (Targeting, usize), lattice: f64) {
     let base = soup.pts.len();
     // Per crossing (edge key), how many of its lattice points folded a piece:
     // the nearest first, then the other neighbour, then none (it stays).
@@ -1022,7 +1032,7 @@ fn cut_pieces(
     soup: &mut Soup,
     grid: &Window,
     Line { vertical, coord }: Line,
-    nested: bool,
+    (nested, inherited): (Targeting, usize),
     lattice: f64,
     tried: &HashMap<(u32, u32), u8>,
 ) -> (Vec<[u32; 3]>, Vec<[bool; 3]>, Vec<u32>, HashMap<u32, (u32, u32)>) {
@@ -1074,7 +1084,18 @@ fn cut_pieces(
                 at(lo) + (t - lo) * (at(hi) - at(lo))
             };
             let (x, z) = if vertical { (c, t) } else { (t, c) };
-            pts.push(V { x, z, h, ph: if nested { ph } else { h } });
+            // A crossing of an edge an earlier line's cut made (a piece
+            // edge, inside one parent triangle, from a crossing the grid
+            // may have moved off the parent's planes) takes the parent's
+            // height where it lands ([`Targeting`]); a crossing of a parent
+            // edge keeps the height at the exact crossing, right for the
+            // parent triangles on both sides of that edge.
+            let ph = match nested.parent {
+                _ if !nested.nested => h,
+                Some(parent) if key.1 as usize >= inherited => parent.locate(x, z, 1e-6).map_or(ph, |(_, ph)| ph),
+                _ => ph,
+            };
+            pts.push(V { x, z, h, ph });
             let v = (pts.len() - 1) as u32;
             if on_lattice {
                 moved.insert(v, key);
@@ -1132,7 +1153,7 @@ fn cut_pieces(
 /// rounding of a fixed edge whose end is a cut point (not exactly
 /// representable) splits that edge instead of leaving a zero-width sliver
 /// beside it, which would make the surface two-valued along the edge.
-fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested: bool) {
+fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested: Targeting) {
     let p = Coord { x: f64::from(j), y: f64::from(i) };
     let h = grid.vertex_height(i as usize, j as usize);
     match tin.locate_from(t, p) {
@@ -1151,19 +1172,19 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested:
             });
             match near {
                 Some(e) => {
-                    let ph = if nested { parent_height_on_edge(tin, e, p) } else { h };
+                    let ph = nested.on_edge(tin, e, p, h);
                     let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
                     tin.split_edge(e, v);
                 }
                 None => {
-                    let ph = if nested { parent_height_in(tin, f, p) } else { h };
+                    let ph = nested.in_triangle(tin, f, p, h);
                     let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
                     tin.split_triangle(f, v);
                 }
             }
         }
         Position::Edge(e) => {
-            let ph = if nested { parent_height_on_edge(tin, e, p) } else { h };
+            let ph = nested.on_edge(tin, e, p, h);
             let v = tin.add_vertex(V { x: p.x, z: p.y, h, ph });
             tin.split_edge(e, v);
         }
@@ -1171,29 +1192,76 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested:
     }
 }
 
-/// The parent surface's height at `p` in triangle `t` (linear there, as every
-/// triangle refines a parent triangle).
-fn parent_height_in(tin: &Tin, t: u32, p: Coord<f64>) -> f64 {
-    let [a, b, c] = tin.corners(t);
-    match plane_weights(&a, &b, &c, p.x, p.y) {
-        Some([_, l1, l2]) => (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph,
-        None => a.ph,
-    }
+/// Where a new vertex's morph target, the parent surface's height at it,
+/// comes from: interpolated over the triangle or edge of this TIN it falls
+/// in (every triangle refines a parent triangle, linear there), or, where a
+/// corner of that is a cut point the quantized file moved along its line
+/// onto its grid, read from the parent itself.
+///
+/// Such a crossing keeps the parent's height at the exact crossing, which
+/// the planes of the parent triangles beside it miss at the moved point by
+/// their slope times the move; on a parent sliver that is metres for a
+/// thousandth of a cell. Interpolated, that error went on into every
+/// vertex placed against the crossing, inside ordinary parent triangles
+/// whose gentle slope allows no such miss (Provence at 5 m, 16-cell
+/// leaves, `quantize`: a sample 0.75 m off its parent, beside two
+/// crossings from one parent sliver on one grid point).
+#[derive(Clone, Copy)]
+struct Targeting<'a> {
+    /// The chunk has a parent (at the top level a target is the height).
+    nested: bool,
+    /// The parent's surface, given for quantized output.
+    parent: Option<&'a SurfaceLocator<'a>>,
 }
 
-/// The parent surface's height at `p` on (or next to) half-edge `e`.
-fn parent_height_on_edge(tin: &Tin, e: u32, p: Coord<f64>) -> f64 {
-    let (a, b) = tin.ends(e);
-    let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
-    let (dx, dz) = (b.x - a.x, b.z - a.z);
-    let s = (((p.x - a.x) * dx + (p.y - a.z) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
-    a.ph + s * (b.ph - a.ph)
+impl Targeting<'_> {
+    /// The target at `p`, of height `h`, whose parent height interpolates
+    /// as `interpolated` over `corners`.
+    fn target(&self, p: Coord<f64>, h: f64, corners: &[V], interpolated: impl FnOnce() -> f64) -> f64 {
+        if !self.nested {
+            return h;
+        }
+        match self.parent {
+            Some(parent) if corners.iter().any(|v| !whole(v.x) || !whole(v.z)) => {
+                parent.locate(p.x, p.y, 1e-6).map_or_else(interpolated, |(_, ph)| ph)
+            }
+            _ => interpolated(),
+        }
+    }
+
+    /// The target at `p` of height `h` in triangle `t`.
+    fn in_triangle(&self, tin: &Tin, t: u32, p: Coord<f64>, h: f64) -> f64 {
+        let [a, b, c] = tin.corners(t);
+        self.target(p, h, &[a, b, c], || match plane_weights(&a, &b, &c, p.x, p.y) {
+            Some([_, l1, l2]) => (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph,
+            None => a.ph,
+        })
+    }
+
+    /// The target at `p` of height `h` on (or next to) half-edge `e`.
+    fn on_edge(&self, tin: &Tin, e: u32, p: Coord<f64>, h: f64) -> f64 {
+        let (a, b) = tin.ends(e);
+        let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
+        self.target(p, h, &[a, b], || {
+            let (dx, dz) = (b.x - a.x, b.z - a.z);
+            let s = (((p.x - a.x) * dx + (p.y - a.z) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
+            a.ph + s * (b.ph - a.ph)
+        })
+    }
 }
 
 /// 1-D greedy refinement of the line `x = coord` (`vertical`) or `z = coord`
 /// over `span`, a chain of edges: split every interval at its worst valid
 /// sample until all are within `target`.
-fn refine_line(tin: &mut Tin, grid: &Window, vertical: bool, coord: u32, span: Span, target: Targets, nested: bool) {
+fn refine_line(
+    tin: &mut Tin,
+    grid: &Window,
+    vertical: bool,
+    coord: u32,
+    span: Span,
+    target: Targets,
+    nested: Targeting,
+) {
     let c = f64::from(coord);
     let (lo, hi) = (f64::from(span.0), f64::from(span.1));
     let mut pts: Vec<(f64, u32)> = tin
@@ -1233,9 +1301,10 @@ fn refine_line(tin: &mut Tin, grid: &Window, vertical: bool, coord: u32, span: S
             unreachable!("a line is a chain of edges");
         };
         let s = (f64::from(t) - a.0) / (b.0 - a.0);
-        let (pa, pb) = (tin.pts[a.1 as usize].ph, tin.pts[b.1 as usize].ph);
-        let ph = if nested { pa + s * (pb - pa) } else { h };
         let (j, i) = sample(t);
+        let (pa, pb) = (tin.pts[a.1 as usize], tin.pts[b.1 as usize]);
+        let ph =
+            nested.target(Coord { x: f64::from(j), y: f64::from(i) }, h, &[pa, pb], || pa.ph + s * (pb.ph - pa.ph));
         let v = tin.add_vertex(V { x: f64::from(j), z: f64::from(i), h, ph });
         tin.split_edge(e, v);
         let m = (f64::from(t), v);
@@ -2112,7 +2181,8 @@ mod tests {
         let mut soup = Soup { fixed: vec![[true; 3]; tris.len()], origin: vec![u32::MAX; tris.len()], pts, tris };
         let lattice = 256.0;
         let before = soup.pts.len();
-        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, true, lattice);
+        let nested = (Targeting { nested: true, parent: None }, soup.pts.len());
+        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, nested, lattice);
         let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
         let area = |t: &[u32; 3]| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) / 2.0;
         for t in &soup.tris {
@@ -2137,6 +2207,43 @@ mod tests {
         assert!(flat > 0, "the crossings on one point leave flat pieces between them");
     }
 
+    /// Provence at 5 m with 16-cell leaves, `quantize`, failed `verify`: a
+    /// sample was placed on an edge from a crossing that the file's grid had
+    /// moved a thousandth of a cell off a steep parent sliver, and its morph
+    /// target, interpolated from that crossing's, missed the parent by 1.9 m
+    /// (and the next sample, inside an ordinary parent triangle, by 0.75 m).
+    /// In a quantized build every sample's target is now the parent
+    /// surface's height at it, to f64 rounding, however the crossings moved.
+    #[test]
+    fn samples_placed_against_moved_crossings_target_the_parent_surface() {
+        let (w, h) = (129, 97);
+        let heights = rough(w, h);
+        let grid = Grid::new(w, h, &heights, None);
+        let root = ChunkKey { level: 0, x: 0, y: 0 };
+        fn on_grid(spec: ChunkSpec<'_>, k: u32) -> ChunkSpec<'_> {
+            ChunkSpec { cut_lattice: Some(k), ..spec }
+        }
+        let parent = build_chunk(&grid, &on_grid(lined(root, ((0, 128), (0, 96)), 4.0, None, false), 2)).unwrap();
+        let surface = parent.locator();
+        let (mut samples, mut crossings) = (0, 0);
+        for (x, y, footprint) in
+            [(0, 0, ((0, 64), (0, 48))), (1, 0, ((64, 128), (0, 48))), (1, 1, ((64, 128), (48, 96)))]
+        {
+            let key = ChunkKey { level: 1, x, y };
+            let child = build_chunk(&grid, &on_grid(lined(key, footprint, 2.0, Some(&parent), false), 3)).unwrap();
+            for v in &child.vertices {
+                if whole(v.x) && whole(v.z) {
+                    let (_, ph) = surface.locate(v.x, v.z, 1e-9).expect("on the parent");
+                    assert!((ph - v.ph).abs() < 1e-9, "sample ({}, {}): target {} against {ph}", v.x, v.z, v.ph);
+                    samples += 1;
+                } else {
+                    crossings += usize::from(!off_lattice(v.x, 8.0) && !off_lattice(v.z, 8.0));
+                }
+            }
+        }
+        assert!(samples > 300 && crossings > 20, "{samples} samples, {crossings} cut points on the grid");
+    }
+
     /// California at 1 m panicked ("a line is a chain of edges"): crossings
     /// within half a step of the point where the dividing line meets the
     /// border rounded onto that sample, where the border's vertex already
@@ -2152,7 +2259,8 @@ mod tests {
         // whose nearest point on a 1/256 grid is the sample (10, 5) = P.
         let pts = vec![v(9.0, 4.998), v(11.0, 5.0), v(10.0, 5.0)];
         let mut soup = Soup { pts, tris: vec![[0, 1, 2]], fixed: vec![[true; 3]], origin: vec![0] };
-        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, true, 256.0);
+        let nested = (Targeting { nested: true, parent: None }, soup.pts.len());
+        cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, nested, 256.0);
         let x = soup.pts[3];
         assert_eq!((x.x, x.z * 256.0), (10.0, 1279.0), "the other neighbour, off the sample");
         let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
