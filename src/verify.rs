@@ -1095,10 +1095,14 @@ fn check_morph(c: &ChunkFile, parent: &ParentSurface, spacing: [f64; 2], problem
             .into_iter()
             .map(|(t, h)| {
                 let g = (target - h).abs();
+                let excess = g - allowed(t);
+                if excess <= 0.0 {
+                    return (excess, g);
+                }
                 let corners = p.surface.triangles[t as usize].map(|i| pv[i as usize]);
                 let within = heights_within(corners, (v.x, v.z), [rx / spacing[0], rz / spacing[1]])
                     .map_or(f64::INFINITY, |(lo, hi)| (lo - target).max(target - hi).max(0.0) - 1e-5 - 2.0 * ry);
-                ((g - allowed(t)).min(within), g)
+                (excess.min(within), g)
             })
             .reduce(|a, b| (a.0.min(b.0), a.1.min(b.1)));
         match best {
