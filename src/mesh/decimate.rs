@@ -967,8 +967,8 @@ struct Line {
 /// parent edge stays the parent's height at the exact crossing, so the
 /// pieces' morph planes are the parent triangle's to within the slope times
 /// half a step, as `verify` allows; a crossing of a piece edge (the second
-/// line's, across the first's pieces) and every vertex placed later against
-/// a cut point take the parent's height where they are ([`Targeting`]).
+/// line's, across the first's pieces) and every vertex placed later take
+/// the parent's height where they are ([`Targeting`]).
 /// Crossings closer together than a step (a fan of parent edges from a
 /// vertex just off the line) land on one point as separate vertices with
 /// flat pieces between them, as the file would draw them anyway; a crossing
@@ -1194,18 +1194,21 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested:
 
 /// Where a new vertex's morph target, the parent surface's height at it,
 /// comes from: interpolated over the triangle or edge of this TIN it falls
-/// in (every triangle refines a parent triangle, linear there), or, where a
-/// corner of that is a cut point the quantized file moved along its line
-/// onto its grid, read from the parent itself.
+/// in (with f32 output every triangle refines one parent triangle, linear
+/// there), or, with quantized output, read from the parent itself.
 ///
-/// Such a crossing keeps the parent's height at the exact crossing, which
-/// the planes of the parent triangles beside it miss at the moved point by
-/// their slope times the move; on a parent sliver that is metres for a
-/// thousandth of a cell. Interpolated, that error went on into every
-/// vertex placed against the crossing, inside ordinary parent triangles
-/// whose gentle slope allows no such miss (Provence at 5 m, 16-cell
-/// leaves, `quantize`: a sample 0.75 m off its parent, beside two
-/// crossings from one parent sliver on one grid point).
+/// A quantized file moves each crossing along its line onto its grid. The
+/// crossing keeps the parent's height at the exact crossing, which the
+/// planes of the parent triangles beside it miss at the moved point by
+/// their slope times the move, and the pieces' edges move with it, so a
+/// sample may fall on the wrong side of a parent edge by that much: on a
+/// parent sliver either is metres for a thousandth of a cell. Interpolated,
+/// that went on into every vertex placed against the crossing, and from
+/// them into the next, inside ordinary parent triangles whose gentle slope
+/// allows no such miss (Provence at 5 m, 16-cell leaves: a sample 0.75 m
+/// off its parent; Sierra 3 × 3 at 5 m, 16-cell leaves: 7.3 m, two
+/// samples from the crossing). Reading the parent costs the mesher about a
+/// tenth more time in quantized builds.
 #[derive(Clone, Copy)]
 struct Targeting<'a> {
     /// The chunk has a parent (at the top level a target is the height).
@@ -1216,23 +1219,19 @@ struct Targeting<'a> {
 
 impl Targeting<'_> {
     /// The target at `p`, of height `h`, whose parent height interpolates
-    /// as `interpolated` over `corners`.
-    fn target(&self, p: Coord<f64>, h: f64, corners: &[V], interpolated: impl FnOnce() -> f64) -> f64 {
-        if !self.nested {
-            return h;
-        }
+    /// as `interpolated`.
+    fn target(&self, p: Coord<f64>, h: f64, interpolated: impl FnOnce() -> f64) -> f64 {
         match self.parent {
-            Some(parent) if corners.iter().any(|v| !whole(v.x) || !whole(v.z)) => {
-                parent.locate(p.x, p.y, 1e-6).map_or_else(interpolated, |(_, ph)| ph)
-            }
-            _ => interpolated(),
+            _ if !self.nested => h,
+            Some(parent) => parent.locate(p.x, p.y, 1e-6).map_or_else(interpolated, |(_, ph)| ph),
+            None => interpolated(),
         }
     }
 
     /// The target at `p` of height `h` in triangle `t`.
     fn in_triangle(&self, tin: &Tin, t: u32, p: Coord<f64>, h: f64) -> f64 {
         let [a, b, c] = tin.corners(t);
-        self.target(p, h, &[a, b, c], || match plane_weights(&a, &b, &c, p.x, p.y) {
+        self.target(p, h, || match plane_weights(&a, &b, &c, p.x, p.y) {
             Some([_, l1, l2]) => (1.0 - l1 - l2) * a.ph + l1 * b.ph + l2 * c.ph,
             None => a.ph,
         })
@@ -1242,7 +1241,7 @@ impl Targeting<'_> {
     fn on_edge(&self, tin: &Tin, e: u32, p: Coord<f64>, h: f64) -> f64 {
         let (a, b) = tin.ends(e);
         let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
-        self.target(p, h, &[a, b], || {
+        self.target(p, h, || {
             let (dx, dz) = (b.x - a.x, b.z - a.z);
             let s = (((p.x - a.x) * dx + (p.y - a.z) * dz) / (dx * dx + dz * dz)).clamp(0.0, 1.0);
             a.ph + s * (b.ph - a.ph)
@@ -1303,8 +1302,7 @@ fn refine_line(
         let s = (f64::from(t) - a.0) / (b.0 - a.0);
         let (j, i) = sample(t);
         let (pa, pb) = (tin.pts[a.1 as usize], tin.pts[b.1 as usize]);
-        let ph =
-            nested.target(Coord { x: f64::from(j), y: f64::from(i) }, h, &[pa, pb], || pa.ph + s * (pb.ph - pa.ph));
+        let ph = nested.target(Coord { x: f64::from(j), y: f64::from(i) }, h, || pa.ph + s * (pb.ph - pa.ph));
         let v = tin.add_vertex(V { x: f64::from(j), z: f64::from(i), h, ph });
         tin.split_edge(e, v);
         let m = (f64::from(t), v);
