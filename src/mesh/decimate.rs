@@ -317,12 +317,13 @@ fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Re
     // Step 5 comes with step 4: a chunk filled by parts thins each part.
     let (tin, lines, scans) = match spec.split_insertion && (mx.is_some() || mz.is_some()) {
         true if thinning == Thinning::Joined && spec.thin => {
-            let (mut tin, mut lines, scans) = insert_by_parts(grid, spec, target, &tin, lines, &start, false, nested)?;
+            let (mut tin, mut lines, scans) =
+                insert_by_parts(grid, spec, (target, nested), &tin, lines, &start, false)?;
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans };
             thin(&mut tin, &mut lines, &mut queue);
             (tin, lines, queue.scans)
         }
-        true => insert_by_parts(grid, spec, target, &tin, lines, &start, spec.thin, nested)?,
+        true => insert_by_parts(grid, spec, (target, nested), &tin, lines, &start, spec.thin)?,
         false => {
             let (mut tin, mut lines) = (tin, lines);
             let mut queue = Queue { grid, clip: spec.footprint, target, heap: TriHeap::default(), scans: Vec::new() };
@@ -609,12 +610,11 @@ struct PartTin {
 fn insert_by_parts(
     grid: &Window,
     spec: &ChunkSpec,
-    target: Targets,
+    (target, nested): (Targets, Targeting),
     tin: &Tin,
     mut lines: Lines,
     start: &[Option<TriangleScan>],
     thin_parts: bool,
-    nested: Targeting,
 ) -> Result<(Tin, Lines, Vec<Scan>), MeshError> {
     let ((x0, x1), (z0, z1)) = spec.footprint;
     let (mx, mz) = (midpoint((x0, x1)), midpoint((z0, z1)));
