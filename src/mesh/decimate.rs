@@ -1207,8 +1207,9 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, j: u32, i: u32, nested:
 /// them into the next, inside ordinary parent triangles whose gentle slope
 /// allows no such miss (Provence at 5 m, 16-cell leaves: a sample 0.75 m
 /// off its parent; Sierra 3 × 3 at 5 m, 16-cell leaves: 7.3 m, two
-/// samples from the crossing). Reading the parent costs the mesher about a
-/// tenth more time in quantized builds.
+/// samples from the crossing). Reading the parent costs quantized builds'
+/// mesher about 45 % more time (Sierra 3 × 3 at 5 m: 8.5 → 12.6
+/// thread-seconds, the whole build 9.0 → 11.1 s).
 #[derive(Clone, Copy)]
 struct Targeting<'a> {
     /// The chunk has a parent (at the top level a target is the height).
