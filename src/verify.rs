@@ -955,9 +955,10 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
     // count a vertex it merely touches (within f32 rounding) against it.
     let w = (x1 - x0 + 1) as usize;
     let mut best = vec![f64::INFINITY; w * (z1 - z0 + 1) as usize];
-    let mut over_nodata = 0;
+    let (mut over_nodata, mut turned) = (0, 0);
     for t in &c.surface.triangles {
         let tri = t.map(|i| verts[i as usize]);
+        turned += usize::from(turned_over(&tri));
         let alone = scan_written(hf, &tri, c.footprint, |i, j, e| {
             let best = &mut best[(i - z0 as usize) * w + (j - x0 as usize)];
             *best = best.min(e);
@@ -966,6 +967,9 @@ fn check_error(hf: &Heightfield, c: &ChunkFile, spacing: [f64; 2], problems: &mu
     }
     if over_nodata > 0 {
         problems.push(format!("{over_nodata} triangles stand over nodata alone"));
+    }
+    if turned > 0 {
+        problems.push(format!("{turned} triangles are turned over (wound against the rest in plan)"));
     }
     let covered: Vec<bool> = best.iter().map(|e| e.is_finite()).collect();
     let max_err = best.iter().copied().filter(|e| e.is_finite()).fold(0.0, f64::max);
@@ -1019,6 +1023,21 @@ fn scan_written(
         }
     });
     nodata_inside && !any_valid
+}
+
+/// Whether triangle `tri` (grid units, as read back, in file order) is
+/// wound the wrong way in plan: the surface folds over itself there, drawn
+/// twice or, with back faces culled, not at all. Chunks are written
+/// counter-clockwise seen from above (+y), which in x-east, z-south grid
+/// space is a negative signed area; a zero area (two corners on one point,
+/// as a quantized file may put close crossings) is not turned.
+fn turned_over([a, b, c]: &[MeshVertex; 3]) -> bool {
+    let o = robust::orient2d(
+        robust::Coord { x: a.x, y: a.z },
+        robust::Coord { x: b.x, y: b.z },
+        robust::Coord { x: c.x, y: c.z },
+    );
+    o > 0.0
 }
 
 /// Whether (x, z) lies inside triangle `tri` by more than `margin` from
@@ -1495,6 +1514,22 @@ mod tests {
     /// sample within 10⁻⁴ was a nodata one 9·10⁻⁵ outside its edge. A
     /// triangle stands over nodata alone only where a nodata sample is
     /// inside it by more than rounding and no valid one is that near.
+    #[test]
+    fn a_triangle_wound_against_the_file_order_is_turned_over_and_a_flat_one_is_not() {
+        // Written counter-clockwise seen from above: clockwise in x-east,
+        // z-south grid space.
+        let written = [v(0.0, 0.0), v(0.0, 1.0), v(1.0, 0.0)];
+        assert!(!turned_over(&written));
+        let [a, b, c] = written;
+        assert!(turned_over(&[a, c, b]));
+        // A sliver a step wide, as the Sierra chunks had it, either way round.
+        let sliver = [v(129.0, 276.0), v(120.7890625, 253.0), v(130.78515625, 281.0)];
+        assert!(turned_over(&sliver));
+        assert!(!turned_over(&[sliver[0], sliver[2], sliver[1]]));
+        // Two corners on one point (close crossings on one lattice point).
+        assert!(!turned_over(&[v(3.0, 2.0), v(3.0, 2.0), v(5.0, 7.0)]));
+    }
+
     #[test]
     fn a_sliver_passing_a_rounding_from_a_nodata_sample_does_not_stand_over_it() {
         let (w, h) = (460, 270);

@@ -27,6 +27,7 @@
 //! | a bump exactly max_error high / 1/64 m higher | not a vertex, error exactly δ / meshed |
 //! | `leaf_cells` 256 on hills / 300 on noise | 2 levels, verifies / refused: names the setting |
 //! | ETOPO2 France–Italy at 1 m: a line sample exactly δ off beside a cut corner | verifies (was refused as a mesher bug) |
+//! | Mount St Helens `quantize` at 5 m, 32-cell leaves: a sample beside a parent edge | verifies, no triangle turned over |
 
 use std::path::{Path, PathBuf};
 
@@ -783,4 +784,26 @@ fn a_morph_target_on_a_steep_parent_sliver_verifies() {
 #[test]
 fn a_line_sample_beside_a_cut_point_does_not_end_the_tree_over_max_error() {
     survives(&crate::common::fixture("france_italy_etopo2.tif"), config(0.5, 16));
+}
+
+/// Mount St Helens at 5 m with 32-cell leaves, `quantize`: two chunks held
+/// a triangle turned over ("1 triangles are turned over", which `verify`
+/// now checks). A sample 10⁻⁴ cells beside a parent edge made a sliver
+/// there; the next level's crossing of that edge, moved onto the file's
+/// lattice, turned it. Such a sample now splits the edge (as one within
+/// rounding always did) wherever that turns nothing across it.
+#[test]
+fn a_quantized_build_turns_no_sliver_beside_a_parent_edge_over() {
+    use terrachunk::config::Compress;
+    // `verify` decodes the quantized files (`survives` reads with the gltf
+    // crate, which knows no quantized file); the validator reads them too.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let cfg = Config { compress: Compress::Quantize, ..config(5.0, 32) };
+    let report = build(&with_config(&crate::common::fixture("mount_st_helens_30m.tif"), &out, cfg)).unwrap();
+    let checked = verified(&out);
+    // The turned triangles were at levels 3 and 4.
+    assert!(checked.levels.len() >= 5, "{} levels", checked.levels.len());
+    let chunks: usize = report.levels.iter().map(|l| l.chunks).sum();
+    assert_eq!(khronos_validate(&out)["files"], chunks as u64);
 }

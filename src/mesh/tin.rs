@@ -411,6 +411,35 @@ impl Tin {
         self.legalize(&edges);
     }
 
+    /// The corners of the triangle across half-edge `e`, if any.
+    pub fn across(&self, e: u32) -> Option<[V; 3]> {
+        let f = self.twin[e as usize];
+        (f != NONE).then(|| self.corners(f / 3))
+    }
+
+    /// Whether splitting half-edge `e` at `p` ([`Tin::split_edge`]), a point
+    /// within rounding of it but not on it, leaves all four new triangles
+    /// counter-clockwise (or flat where the twin was): beside a sliver whose far corner lies just past
+    /// the edge's end, a point on the other side of the edge turns one of
+    /// them over (Sierra 3 × 3 at 5 m, 32-cell leaves, `quantize`).
+    pub fn splits_cleanly(&self, e: u32, p: Coord<f64>) -> bool {
+        let (a, b) = self.ends(e);
+        let (pa, pb, pc) = (self.coord(a), self.coord(b), self.coord(self.apex(e)));
+        let mut halves = vec![[pa, p, pc], [p, pb, pc]];
+        let f = self.twin[e as usize];
+        if f != NONE {
+            let pd = self.coord(self.apex(f));
+            halves.extend([[pb, p, pd], [p, pa, pd]]);
+        }
+        // A twin that is flat (its far corner on an end of the edge, as a
+        // quantized file places close crossings) leaves a flat half.
+        let same = |p: Coord<f64>, q: Coord<f64>| p.x == q.x && p.y == q.y;
+        halves.iter().all(|&[x, y, z]| {
+            let o = orient2d(x, y, z);
+            o > 0.0 || o == 0.0 && (same(x, y) || same(y, z) || same(z, x))
+        })
+    }
+
     /// Where the edge just split at `v` bordered a flat triangle (two
     /// corners at one point: crossings that a quantized file places on one
     /// lattice point, each its own vertex), one half of that triangle has
@@ -850,5 +879,24 @@ mod tests {
             let h = tin.find_edge(m, end).unwrap_or_else(|| panic!("no edge from the new vertex to {end}"));
             assert!(tin.is_fixed(h), "edge to {end} is not fixed");
         }
+    }
+
+    #[test]
+    fn an_edge_is_not_split_at_a_point_beside_it_where_the_sliver_across_would_turn_over() {
+        // Edge A–B, fixed; C above it; across it a sliver whose far corner D
+        // lies a thousandth of a cell below the line, past B.
+        let pts = vec![v(0.0, 0.0), v(10.0, 0.0), v(5.0, 5.0), v(12.0, -0.001)];
+        let (a, b, c, d) = (0, 1, 2, 3);
+        let tin = Tin::from_soup(pts, &[[a, b, c], [b, a, d]], &[[true, false, false], [true, false, false]]);
+        let e = tin.find_edge(a, b).unwrap();
+        let e = if tin.ends(e) == (a, b) { e } else { tin.twin[e as usize] };
+        // A hundredth of a cell above A–B: [B, p, D] would be clockwise.
+        assert!(!tin.splits_cleanly(e, Coord { x: 7.0, y: 0.01 }));
+        // A ten-thousandth above: all four halves stay counter-clockwise.
+        assert!(tin.splits_cleanly(e, Coord { x: 7.0, y: 0.0001 }));
+        // On a border (no triangle across) only the near side counts.
+        let lone = Tin::from_soup(vec![v(0.0, 0.0), v(10.0, 0.0), v(5.0, 5.0)], &[[0, 1, 2]], &[[true; 3]]);
+        let e = lone.find_edge(0, 1).unwrap();
+        assert!(lone.splits_cleanly(e, Coord { x: 7.0, y: 0.01 }));
     }
 }
