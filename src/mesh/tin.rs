@@ -418,26 +418,27 @@ impl Tin {
     }
 
     /// Whether splitting half-edge `e` at `p` ([`Tin::split_edge`]), a point
-    /// within rounding of it but not on it, leaves all four new triangles
-    /// counter-clockwise (or flat where the twin was): beside a sliver whose far corner lies just past
-    /// the edge's end, a point on the other side of the edge turns one of
-    /// them over (Sierra 3 × 3 at 5 m, 32-cell leaves, `quantize`).
+    /// near it but not on it, leaves all four new triangles counter-clockwise
+    /// (or flat where the twin was): beside a sliver whose far corner lies
+    /// just past the edge's end, a point on the other side of the edge turns
+    /// one of them over (Sierra 3 × 3 at 5 m, 32-cell leaves, `quantize`).
     pub fn splits_cleanly(&self, e: u32, p: Coord<f64>) -> bool {
         let (a, b) = self.ends(e);
         let (pa, pb, pc) = (self.coord(a), self.coord(b), self.coord(self.apex(e)));
-        let mut halves = vec![[pa, p, pc], [p, pb, pc]];
-        let f = self.twin[e as usize];
-        if f != NONE {
-            let pd = self.coord(self.apex(f));
-            halves.extend([[pb, p, pd], [p, pa, pd]]);
-        }
         // A twin that is flat (its far corner on an end of the edge, as a
         // quantized file places close crossings) leaves a flat half.
         let same = |p: Coord<f64>, q: Coord<f64>| p.x == q.x && p.y == q.y;
-        halves.iter().all(|&[x, y, z]| {
+        let holds = |[x, y, z]: [Coord<f64>; 3]| {
             let o = orient2d(x, y, z);
             o > 0.0 || o == 0.0 && (same(x, y) || same(y, z) || same(z, x))
-        })
+        };
+        let f = self.twin[e as usize];
+        holds([pa, p, pc])
+            && holds([p, pb, pc])
+            && (f == NONE || {
+                let pd = self.coord(self.apex(f));
+                holds([pb, p, pd]) && holds([p, pa, pd])
+            })
     }
 
     /// Where the edge just split at `v` bordered a flat triangle (two
