@@ -100,6 +100,11 @@ struct Window<'a> {
 }
 
 impl<'a> Window<'a> {
+    /// The last column and row the window holds (inclusive).
+    fn last(&self) -> (usize, usize) {
+        (self.x0 + self.width - 1, self.z0 + self.heights.len() / self.width - 1)
+    }
+
     fn new(grid: &'a Grid<'a>, footprint: (Span, Span)) -> Self {
         let ((x0, x1), (z0, z1)) = footprint;
         let (x0, x1, z0, z1) = (x0 as usize, x1 as usize, z0 as usize, z1 as usize);
@@ -1216,7 +1221,7 @@ fn data_across(tin: &Tin, grid: &Window, e: u32) -> bool {
         return true;
     }
     let Some(tri) = tin.across(e) else { return true };
-    let (x1, z1) = (grid.x0 + grid.width - 1, grid.z0 + grid.heights.len() / grid.width - 1);
+    let (x1, z1) = grid.last();
     let clip = ((grid.x0 as u32, x1 as u32), (grid.z0 as u32, z1 as u32));
     let mut any = false;
     scan_triangle(grid, clip, &tri, |_, _, _| {
@@ -1723,8 +1728,7 @@ enum Coverage {
 fn cell_has_data(grid: &Window, tri: &[V; 3]) -> bool {
     let cx = (tri[0].x + tri[1].x + tri[2].x) / 3.0;
     let cz = (tri[0].z + tri[1].z + tri[2].z) / 3.0;
-    let x1 = grid.x0 + grid.width - 1;
-    let z1 = grid.z0 + grid.heights.len() / grid.width - 1;
+    let (x1, z1) = grid.last();
     let j = (cx.floor().max(grid.x0 as f64) as usize).min(x1 - 1);
     let i = (cz.floor().max(grid.z0 as f64) as usize).min(z1 - 1);
     [(i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)].iter().any(|&(i, j)| !grid.sample(i, j).is_nan())
