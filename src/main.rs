@@ -69,6 +69,12 @@ enum Command {
         /// fewer leaf triangles but cull in bigger pieces (README, "Chunk size").
         #[arg(long)]
         leaf_cells: Option<u32>,
+        /// Widest a top-level chunk may be, in cells, 2..=65536 [default:
+        /// one top-level chunk]. Narrower top chunks make a tree with fewer
+        /// levels: fewer leaf triangles and a smaller tileset, but a far view
+        /// that draws every top chunk (README, "Top-level chunks").
+        #[arg(long)]
+        root_cells: Option<u32>,
         /// Most surface vertices one chunk may hold, 65535..=16777215
         /// [default: 65535]; denser coarse chunks make the build add
         /// refine levels. Chunks over 65 535 vertices get u32 indices.
@@ -242,6 +248,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             max_texture_px,
             normal_map,
             leaf_cells,
+            root_cells,
             max_chunk_vertices,
             thin,
             complete_tree,
@@ -289,6 +296,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             cfg.normal_map |= normal_map;
             if leaf_cells.is_some() {
                 cfg.leaf_cells = leaf_cells;
+            }
+            if root_cells.is_some() {
+                cfg.root_cells = root_cells;
             }
             if let Some(v) = max_chunk_vertices {
                 cfg.max_chunk_vertices = v;
@@ -616,6 +626,9 @@ fn print_summary(r: &Report, out: &std::path::Path, max_chunk_vertices: u32) {
             vertices as f64 / chunks as f64,
             r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
         );
+    }
+    if r.roots.0 > 1 {
+        println!("{} top-level chunks, up to {} cells wide, each the top of its own tree", r.roots.0, r.roots.1);
     }
     if r.refine_levels > 0 {
         println!(

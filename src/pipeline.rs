@@ -219,6 +219,9 @@ pub struct Report {
     /// tree halves the grid, so California's 8 400 cells with `leaf_cells =
     /// 256` make leaves of 131 × 150).
     pub leaf_width_cells: u32,
+    /// The top-level chunks' count and widest, in cells (one chunk unless
+    /// the grid is elongated or `root_cells` is set).
+    pub roots: (usize, u32),
     /// Quantized output: chunks meshed again with a wider margin next to
     /// cut points, so that rounding those sideways to the grid keeps δ.
     pub remeshed_for_cut_points: usize,
@@ -375,7 +378,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     let t = Instant::now();
     let attempts = Instant::now();
     loop {
-        let tree = ChunkTree::plan(hf.width, hf.height, opts.config.max_error_m, leaf_cells, refine);
+        let tree = estimate.tree(leaf_cells, refine);
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         let discarded = attempts.elapsed();
@@ -387,6 +390,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
                 report.discarded_s = discarded.as_secs_f64();
                 report.leaf_cells = leaf_cells;
                 report.leaf_width_cells = tree.widest_cells(tree.depth()).into_iter().max().unwrap_or(0);
+                report.roots = (tree.roots().len(), tree.widest_cells(0).into_iter().max().unwrap_or(0));
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
             // Leaves wider than a dense leaf may be: refine levels keep their

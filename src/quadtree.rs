@@ -63,11 +63,31 @@ impl ChunkTree {
     /// chunk cannot meet its δ within the u16 vertex limit: every level's δ
     /// doubles while the footprints stay, so the leaves keep their size.
     pub fn plan(width: usize, height: usize, max_error_m: f64, leaf_cells: u32, refine_levels: u32) -> Self {
+        Self::plan_rooted(width, height, max_error_m, None, leaf_cells, refine_levels)
+    }
+
+    /// [`Self::plan`] with top-level chunks at most `root_cells` wide along
+    /// either axis (`None`: as few as the aspect rule gives): the grid is
+    /// cut evenly into as many top-level chunks as that takes, each the top
+    /// of its own tree, so the tree has fewer levels above the leaves.
+    pub fn plan_rooted(
+        width: usize,
+        height: usize,
+        max_error_m: f64,
+        root_cells: Option<u32>,
+        leaf_cells: u32,
+        refine_levels: u32,
+    ) -> Self {
         let wc = (width - 1) as u32;
         let hc = (height - 1) as u32;
         // Near-square top cells: no top chunk has an aspect ratio over 2.
-        let nx = if wc >= hc { (f64::from(wc) / f64::from(hc)).round().max(1.0) as u32 } else { 1 };
-        let nz = if hc > wc { (f64::from(hc) / f64::from(wc)).round().max(1.0) as u32 } else { 1 };
+        let mut nx = if wc >= hc { (f64::from(wc) / f64::from(hc)).round().max(1.0) as u32 } else { 1 };
+        let mut nz = if hc > wc { (f64::from(hc) / f64::from(wc)).round().max(1.0) as u32 } else { 1 };
+        if let Some(r) = root_cells {
+            let r = r.max(1);
+            nx = nx.max(wc.div_ceil(r));
+            nz = nz.max(hc.div_ceil(r));
+        }
         let mut xs = vec![split_even(wc, nx)];
         let mut zs = vec![split_even(hc, nz)];
         loop {
@@ -193,6 +213,28 @@ mod tests {
         assert_eq!(t.depth(), 2);
         assert_eq!(t.delta_m, vec![4.0, 2.0, 1.0]);
         assert_eq!(t.xs[2], vec![(0, 128), (128, 256), (256, 384), (384, 512)]);
+    }
+
+    #[test]
+    fn top_chunks_at_most_root_cells_wide_make_a_forest_over_the_same_leaves() {
+        let one = ChunkTree::plan(4097, 4097, 5.0, 128, 0);
+        let forest = ChunkTree::plan_rooted(4097, 4097, 5.0, Some(512), 128, 0);
+        assert_eq!(one.depth(), 5);
+        assert_eq!((forest.roots().len(), forest.widest_cells(0)), (64, [512, 512]));
+        // Three levels instead of six, the same leaves at the same δ.
+        assert_eq!(forest.delta_m, vec![20.0, 10.0, 5.0]);
+        assert_eq!((forest.xs.last(), forest.zs.last()), (one.xs.last(), one.zs.last()));
+        // Unset, or wider than the grid, it is the one-root plan.
+        for r in [None, Some(4096), Some(65_536)] {
+            let t = ChunkTree::plan_rooted(4097, 4097, 5.0, r, 128, 0);
+            assert_eq!((t.xs, t.zs, t.delta_m), (one.xs.clone(), one.zs.clone(), one.delta_m.clone()));
+        }
+        // An elongated grid keeps its near-square top cells where those are
+        // narrower; a bound cuts only what is wider.
+        let wide = ChunkTree::plan_rooted(1001, 201, 1.0, Some(300), 128, 0);
+        assert_eq!((wide.xs[0].len(), wide.zs[0].len()), (5, 1));
+        let cut = ChunkTree::plan_rooted(1001, 201, 1.0, Some(150), 128, 0);
+        assert_eq!((cut.xs[0].len(), cut.zs[0].len()), (7, 2));
     }
 
     #[test]

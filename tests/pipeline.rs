@@ -343,7 +343,7 @@ fn the_leaf_width_is_the_shallowest_tree_within_8000_vertices_per_chunk() {
 fn a_leaf_width_is_judged_with_the_refine_levels_it_is_built_with() {
     let hf = terrachunk::dem::load(&[fixture("france_italy_etopo2.tif")], &Default::default()).unwrap();
     let grid = Grid::new(hf.width, hf.height, &hf.heights, None);
-    let mut estimate = Estimate::new(&grid, 0.1, 65_535);
+    let mut estimate = Estimate::new(&grid, 0.1, 65_535, None);
     let (leaf, refine) = estimate.leaf_cells(u32::MAX);
     assert_eq!(leaf, 64, "leaf width");
     assert!(refine > 0, "the 64-cell tree needs refine levels here");
@@ -378,7 +378,7 @@ fn the_estimate_counts_the_chunks_a_build_makes_over_a_flat_sea() {
     let grid = Grid::new(hf.width, hf.height, &hf.heights, None);
     let tree = ChunkTree::plan(hf.width, hf.height, 1.0, 32, report.refine_levels);
     let full: Vec<usize> = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).collect();
-    assert_eq!(Estimate::new(&grid, 1.0, 65_535).chunks_built(&tree), built);
+    assert_eq!(Estimate::new(&grid, 1.0, 65_535, None).chunks_built(&tree), built);
     assert!(built.iter().sum::<usize>() < full.iter().sum::<usize>(), "the sea ends shallow: {built:?} of {full:?}");
 }
 
@@ -791,6 +791,45 @@ fn leaf_cells_from_the_command_line_bounds_the_leaves_built() {
     let bad = tmp.path().join("bad");
     let args = ["build", g, "-o", bad.to_str().unwrap(), "--leaf-cells", "1"];
     assert_bad_input(&args, &bad, "leaf_cells = 1: must be within 2..=4096 cells");
+}
+
+/// `--root-cells` cuts the grid into top-level chunks at most that wide,
+/// each the top of its own tree under the tileset's root. The trees are
+/// shallower, so fewer levels bind the leaves to their edges and the leaves
+/// need fewer triangles for the same error; the trees' top chunks share
+/// their borders like any neighbours, which `verify` checks. Mount St
+/// Helens' 326 × 467 cells under a bound of 64 make 6 × 8 top chunks.
+#[test]
+fn top_level_chunks_at_most_root_cells_wide_make_shallower_trees_with_fewer_leaf_triangles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let g = fixture("mount_st_helens_30m.tif");
+    let g = g.to_str().unwrap();
+    let run = |name: &str, extra: &[&str]| {
+        let out = tmp.path().join(name);
+        let report = tmp.path().join(format!("{name}.json"));
+        let mut args = vec!["build", g, "-o", out.to_str().unwrap(), "--texture", "none", "--max-error", "2"];
+        args.extend(["--leaf-cells", "32", "--report", report.to_str().unwrap()]);
+        args.extend(extra);
+        let o = cli(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        verified(&out);
+        let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+        (out, r, String::from_utf8_lossy(&o.stdout).into_owned())
+    };
+    let (_, one, _) = run("one", &[]);
+    let (out, forest, text) = run("forest", &["--root-cells", "64"]);
+    assert_eq!(one["roots"], json!([1, 467]));
+    assert_eq!(forest["roots"], json!([48, 59]));
+    assert!(text.contains("48 top-level chunks, up to 59 cells wide"), "{text}");
+    let levels = |r: &Value| r["levels"].as_array().unwrap().len();
+    assert_eq!((levels(&one), levels(&forest)), (5, 2));
+    let top = tileset(&out)["root"]["children"].as_array().unwrap().len();
+    assert_eq!(top, forest["levels"][0]["chunks"].as_u64().unwrap() as usize);
+    let leaves = |r: &Value| r["levels"].as_array().unwrap().last().unwrap()["triangles"].as_u64().unwrap();
+    assert!(leaves(&forest) < leaves(&one), "leaves: forest {} against {}", leaves(&forest), leaves(&one));
+    let bad = tmp.path().join("bad");
+    let args = ["build", g, "-o", bad.to_str().unwrap(), "--root-cells", "1"];
+    assert_bad_input(&args, &bad, "root_cells = 1: must be within 2..=65536 cells");
 }
 
 #[test]

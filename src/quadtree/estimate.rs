@@ -50,7 +50,7 @@ pub(crate) fn plan_tree<'g>(
         let by_bound = texels * cfg.max_error_m / cfg.tau_max_px / hf.spacing_m[0].max(hf.spacing_m[1]);
         by_source.max(by_bound).floor().min(f64::from(u32::MAX)) as u32
     });
-    let mut estimate = Estimate::new(grid, cfg.max_error_m, cfg.max_chunk_vertices as usize);
+    let mut estimate = Estimate::new(grid, cfg.max_error_m, cfg.max_chunk_vertices as usize, cfg.root_cells);
     let (leaf_cells, refine) = match cfg.leaf_cells {
         Some(c) => (c, estimate.refine_levels(c)),
         None => estimate.leaf_cells(widest_leaf),
@@ -79,6 +79,9 @@ pub struct Estimate<'g> {
     max_error_m: f64,
     /// `max_chunk_vertices`.
     max_vertices: usize,
+    /// `root_cells`: every tree considered has top-level chunks at most
+    /// this wide.
+    root_cells: Option<u32>,
     /// Up to 4 × 4 windows of 64² cells, then (for a close call) up to
     /// 8 × 8 of 32² cells: the same samples, spread over twice as many places.
     windows: [Vec<(Span, Span, usize)>; 2],
@@ -100,8 +103,14 @@ pub struct Estimate<'g> {
 }
 
 impl<'g> Estimate<'g> {
+    /// The tree over the grid with `leaf_cells` leaves and `refine` refine
+    /// levels, under the estimate's `root_cells`.
+    pub fn tree(&self, leaf_cells: u32, refine: u32) -> ChunkTree {
+        ChunkTree::plan_rooted(self.grid.width, self.grid.height, self.max_error_m, self.root_cells, leaf_cells, refine)
+    }
+
     /// Chooses the windows; measures nothing yet.
-    pub fn new(grid: &'g Grid<'g>, max_error_m: f64, max_vertices: usize) -> Self {
+    pub fn new(grid: &'g Grid<'g>, max_error_m: f64, max_vertices: usize, root_cells: Option<u32>) -> Self {
         let windows = [(4, 64), (8, 32)].map(|(most, cells): (usize, usize)| {
             let cells = cells.min(grid.width - 1).min(grid.height - 1);
             let starts = |n: usize| {
@@ -121,12 +130,14 @@ impl<'g> Estimate<'g> {
             windows
         });
         let valid = grid.heights.iter().filter(|h| !h.is_nan()).count() as f64;
-        let narrowest = *leaf_candidates(grid, max_error_m).last().expect("one candidate");
-        let top = ChunkTree::plan(grid.width, grid.height, max_error_m, narrowest, 0).depth() as usize;
+        let narrowest = *leaf_candidates(grid, max_error_m, root_cells).last().expect("one candidate");
+        let top =
+            ChunkTree::plan_rooted(grid.width, grid.height, max_error_m, root_cells, narrowest, 0).depth() as usize;
         Estimate {
             grid,
             max_error_m,
             max_vertices,
+            root_cells,
             windows,
             by_k: [vec![None; 32], vec![None; 32]],
             chains: [None, None],
@@ -279,7 +290,7 @@ impl<'g> Estimate<'g> {
     /// first.
     pub fn leaf_cells(&mut self, widest: u32) -> (u32, u32) {
         let grid = self.grid;
-        let candidates = leaf_candidates(grid, self.max_error_m);
+        let candidates = leaf_candidates(grid, self.max_error_m, self.root_cells);
         let deepest = *candidates.last().expect("one candidate");
         for &c in &candidates {
             let fits = c <= dense_leaf_cells(self.max_vertices as u32)
@@ -291,7 +302,7 @@ impl<'g> Estimate<'g> {
                 continue;
             }
             let refine = self.refine_levels(c);
-            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, c, refine);
+            let tree = self.tree(c, refine);
             // 16 windows of 64² cells miss by up to 13 % (Fuji's root at
             // 20 m: 11 300 estimated, 10 233 built, where 64 windows of 64²,
             // the whole grid, say 9 600): they sample a quarter of Fuji and
@@ -372,8 +383,9 @@ impl<'g> Estimate<'g> {
     /// footprint is measured on its own.
     fn extent(&mut self, fp: (Span, Span)) -> Option<(f32, f32)> {
         if self.extents.is_empty() {
-            let narrowest = *leaf_candidates(self.grid, self.max_error_m).last().expect("one candidate");
-            let full = ChunkTree::plan(self.grid.width, self.grid.height, self.max_error_m, narrowest, 0);
+            let narrowest =
+                *leaf_candidates(self.grid, self.max_error_m, self.root_cells).last().expect("one candidate");
+            let full = self.tree(narrowest, 0);
             for l in (0..full.delta_m.len()).rev() {
                 for (y, &zs) in full.zs[l].iter().enumerate() {
                     for (x, &xs) in full.xs[l].iter().enumerate() {
@@ -412,9 +424,8 @@ impl<'g> Estimate<'g> {
     /// California's two roots at 1 m) is skipped; a closer call is still
     /// built and decides (see `build_into`).
     pub fn refine_levels(&mut self, leaf_cells: u32) -> u32 {
-        let grid = self.grid;
         for refine in 0..MAX_REFINE_LEVELS {
-            let tree = ChunkTree::plan(grid.width, grid.height, self.max_error_m, leaf_cells, refine);
+            let tree = self.tree(leaf_cells, refine);
             let levels = tree.delta_m.len();
             let limit = SURELY_TOO_DENSE * self.max_vertices as f64;
             let mut too_dense = Vec::new();
@@ -452,10 +463,11 @@ impl<'g> Estimate<'g> {
     }
 }
 
-/// The leaf widths of every distinct tree over `grid` with leaves of at
-/// least 32 cells, widest first: the widest chunk after each split.
-fn leaf_candidates(grid: &Grid, max_error_m: f64) -> Vec<u32> {
-    let full = ChunkTree::plan(grid.width, grid.height, max_error_m, 1, 0);
+/// The leaf widths of every distinct tree over `grid` (with top-level
+/// chunks at most `root_cells` wide) with leaves of at least 32 cells,
+/// widest first: the widest chunk after each split.
+fn leaf_candidates(grid: &Grid, max_error_m: f64, root_cells: Option<u32>) -> Vec<u32> {
+    let full = ChunkTree::plan_rooted(grid.width, grid.height, max_error_m, root_cells, 1, 0);
     let widths = (0..=full.depth()).map(|d| full.widest_cells(d).into_iter().max().unwrap_or(0));
     let candidates: Vec<u32> = widths.filter(|&c| c >= 32).collect();
     if candidates.is_empty() { vec![32] } else { candidates }
