@@ -9,8 +9,10 @@
 //! Grids are 2..=40 × 2..=40 samples drawn from a few height distributions
 //! (smooth, white noise, whole metres, terraces, spikes on a plane, flat) at
 //! offsets from −11 km to +9 km, with or without nodata, at spacings from
-//! 1 mm to 10 km; `max_error_m` spans 1 mm to 1 km, `leaf_cells` 2..=40, and
-//! `thin` each of its three settings.
+//! 1 mm to 10 km; `max_error_m` spans 1 mm to 1 km, `leaf_cells` 2..=40,
+//! `root_cells` unset (one top chunk) or 2..=40 (a forest whose trees'
+//! top chunks must share their borders), and `thin` each of its three
+//! settings.
 //! 32 cases by default (`PROPTEST_CASES` overrides); failures are saved in
 //! `tests/properties.proptest-regressions` and replayed first on every run.
 //!
@@ -164,12 +166,21 @@ proptest! {
         leaf_cells in 2u32..=40,
         spacing in prop_oneof![Just([1.0, 1.0]), Just([30.0, 30.0]), Just([0.001, 0.001]), Just([10_000.0, 10_000.0]), Just([0.5, 20.0])],
         thin in prop_oneof![Just(Thin::Leaves), Just(Thin::All), Just(Thin::None)],
+        root_cells in prop_oneof![Just(None), (2u32..=40).prop_map(Some)],
     ) {
         let tmp = tempfile::tempdir().unwrap();
         let dem = tmp.path().join("g.asc");
         let heights = grid.heights();
         write_grid(&dem, &grid, &heights);
-        let config = Config { max_error_m, leaf_cells: Some(leaf_cells), spacing_m: Some(spacing), thin, threads: 1, ..Config::default() };
+        let config = Config {
+            max_error_m,
+            leaf_cells: Some(leaf_cells),
+            root_cells,
+            spacing_m: Some(spacing),
+            thin,
+            threads: 1,
+            ..Config::default()
+        };
         let one = tmp.path().join("one");
         let result = build(&with_config(&dem, &one, config.clone()));
         if heights.iter().all(|h| h.is_nan()) {
