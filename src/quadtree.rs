@@ -1,8 +1,9 @@
 //! Plan: the error-bounded quadtree's footprints and δ per level.
 //!
 //! The grid's cells (`width − 1` × `height − 1`) are cut into near-square
-//! top-level chunks (one, unless the grid is more than twice as wide as it is
-//! tall or vice versa), then every chunk is cut at its integer midpoint along
+//! top-level chunks (one, unless the grid is at least 1.5 times as wide as
+//! it is tall or vice versa, or `root_cells` bounds their width: then as
+//! many as that takes, each the top of its own tree), then every chunk is cut at its integer midpoint along
 //! each axis that is at least 2 cells long. The cuts along x depend only on x
 //! and those along z only on z, so each level's chunks form a tensor-product
 //! grid: same-level neighbours always share a whole edge, and a chunk's key
@@ -14,7 +15,7 @@
 //! its δ within `max_chunk_vertices` (rough ground against a small
 //! error), the planner adds levels at the bottom that keep their parent's
 //! footprint and only halve δ: every δ above doubles, the leaves keep their
-//! size, and the pyramid still reaches one top chunk. δ(L) = max_error·2^(D−L)
+//! size, and the pyramid still reaches its top chunks. δ(L) = max_error·2^(D−L)
 //! (Ulrich 2002, §3: each level halves the error of the one above). Which
 //! chunks exist is decided later, by the mesher: a chunk whose TIN already
 //! meets `max_error` has no children, and a footprint with no valid sample is
