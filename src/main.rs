@@ -628,7 +628,16 @@ fn print_summary(r: &Report, out: &std::path::Path, max_chunk_vertices: u32) {
         );
     }
     if r.roots.0 > 1 {
-        println!("{} top-level chunks, up to {} cells wide, each the top of its own tree", r.roots.0, r.roots.1);
+        let written = r.levels.first().map_or(0, |l| l.chunks);
+        println!(
+            "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}",
+            r.roots.1,
+            if written < r.roots.0 {
+                format!(" ({} more footprints hold no valid sample)", r.roots.0 - written)
+            } else {
+                String::new()
+            }
+        );
     }
     if r.refine_levels > 0 {
         println!(

@@ -219,7 +219,8 @@ pub struct Report {
     /// tree halves the grid, so California's 8 400 cells with `leaf_cells =
     /// 256` make leaves of 131 × 150).
     pub leaf_width_cells: u32,
-    /// The top-level chunks' count and widest, in cells (one chunk unless
+    /// The top-level footprints' count (those with no valid sample
+    /// included: they make no chunk) and the widest, in cells (one unless
     /// the grid is elongated or `root_cells` is set).
     pub roots: (usize, u32),
     /// Quantized output: chunks meshed again with a wider margin next to
