@@ -503,6 +503,18 @@ impl Tin {
         (t, u)
     }
 
+    /// Flips the free edge of half-edge `a` (see `flip`); returns the two
+    /// triangles' slots, the new edge being half-edge `3 * t + 2`.
+    pub fn flip_edge(&mut self, a: u32) -> (u32, u32) {
+        self.flip(a)
+    }
+
+    /// The half-edge across `e`, if any.
+    pub fn twin_of(&self, e: u32) -> Option<u32> {
+        let f = self.twin[e as usize];
+        (f != NONE).then_some(f)
+    }
+
     /// Lawson flips from the given half-edges, each opposite the vertex just
     /// inserted: an edge that is not fixed is flipped while the far corner
     /// lies strictly inside the near triangle's circumcircle.
