@@ -611,15 +611,21 @@ fn max_error_below_the_quantisation_step_and_above_the_relief() {
 /// triangle is rescanned), and the pipeline refuses any chunk beyond its δ
 /// (`BuildError::MissedDelta`). Needs `../shared/dem`; minutes in a dev
 /// build, so run with `--release -- --ignored`.
-#[test]
-#[ignore = "needs ../shared/dem; run in release"]
-fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
+/// Builds `../shared/dem/srtm3_sierra_3x3` (nine SRTM3 tiles) with `cfg`;
+/// the folder, the output and the report.
+fn build_sierra_3x3(cfg: Config) -> (tempfile::TempDir, PathBuf, Report) {
     let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/dem/srtm3_sierra_3x3");
     assert!(dem.is_dir(), "needs {}", dem.display());
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
-    let report = build(&with_config(&dem, &out, Config { max_error_m: 5.0, ..Config::default() }))
-        .unwrap_or_else(|e| panic!("{e}"));
+    let report = build(&with_config(&dem, &out, cfg)).unwrap_or_else(|e| panic!("{e}"));
+    (tmp, out, report)
+}
+
+#[test]
+#[ignore = "needs ../shared/dem; run in release"]
+fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
+    let (_tmp, _, report) = build_sierra_3x3(Config { max_error_m: 5.0, ..Config::default() });
     for l in &report.levels {
         assert!(l.max_error_m <= l.delta_m, "level {}: {} m > δ {} m", l.level, l.max_error_m, l.delta_m);
     }
@@ -819,11 +825,6 @@ fn a_quantized_build_turns_no_sliver_beside_a_parent_edge_over() {
 #[ignore = "needs ../shared/dem; run in release"]
 fn a_fan_of_nearly_parallel_parent_edges_turns_no_child_triangle_over() {
     use terrachunk::config::Compress;
-    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/dem/srtm3_sierra_3x3");
-    assert!(dem.is_dir(), "needs {}", dem.display());
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("out");
-    build(&with_config(&dem, &out, Config { compress: Compress::Quantize, ..config(5.0, 16) }))
-        .unwrap_or_else(|e| panic!("{e}"));
+    let (_tmp, out, _) = build_sierra_3x3(Config { compress: Compress::Quantize, ..config(5.0, 16) });
     verified(&out);
 }
