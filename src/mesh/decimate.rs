@@ -2364,9 +2364,9 @@ mod tests {
         assert!(soup.tris.iter().all(|t| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) > 0.0));
     }
 
-    /// A sample beside a fixed edge is split onto it only where the
-    /// triangle across covers data: over a void, that triangle's parent is
-    /// not written, and the sample at its corner would keep the child's.
+    /// A vertex 7·10⁻⁵ cells from a free edge of its triangle (quantized
+    /// output, one lattice step 1/256) takes the edge's place only where
+    /// the flipped triangles stay within target.
     #[test]
     fn a_vertex_a_hair_from_a_free_edge_takes_its_place_where_the_surface_allows() {
         // 9 × 9 samples at 100 m. The free edge a–b along z = x + 0.5 has
@@ -2394,6 +2394,9 @@ mod tests {
         assert_eq!(run(150.0), (true, false, 0));
     }
 
+    /// A sample beside a fixed edge is split onto it only where the
+    /// triangle across covers data: over a void, that triangle's parent is
+    /// not written, and the sample at its corner would keep the child's.
     #[test]
     fn a_sample_is_split_onto_an_edge_only_where_data_lies_across() {
         // 9 × 9 samples; the columns x < 4 are nodata.
