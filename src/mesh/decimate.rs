@@ -378,11 +378,7 @@ fn unsliver(tin: &mut Tin, grid: &Window, clip: (Span, Span), lines: &Lines, tar
                 tin.pts[tin.apex(e) as usize],
                 tin.pts[tin.apex(f) as usize],
             );
-            let (dx, dz) = (pb.x - pa.x, pb.z - pa.z);
-            let len2 = dx * dx + dz * dz;
-            let cross = dx * (pc.z - pa.z) - dz * (pc.x - pa.x);
-            let along = (dx * (pc.x - pa.x) + dz * (pc.z - pa.z)) / len2;
-            if !(cross.abs() <= within * len2.sqrt() && along > 0.0 && along < 1.0) {
+            if !beside(&pa, &pb, pos(&pc), within) {
                 continue;
             }
             if robust::orient2d(pos(&pc), pos(&pa), pos(&pd)) <= 0.0
@@ -390,13 +386,13 @@ fn unsliver(tin: &mut Tin, grid: &Window, clip: (Span, Span), lines: &Lines, tar
             {
                 continue;
             }
-            let (t1, u1) = tin.flip_edge(e);
+            let (t1, u1) = tin.flip(e);
             let ok = [t1, u1].iter().all(|&s| {
                 let tri = tin.corners(s);
                 scan_within(grid, clip, lines, &tri, target.over(&tri)).is_some()
             });
             if !ok {
-                tin.flip_edge(3 * t1 + 2);
+                tin.flip(3 * t1 + 2);
             }
         }
     }
@@ -1237,14 +1233,7 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, (j, i): (u32, u32), nes
                     return false;
                 }
                 let (a, b) = tin.ends(e);
-                let (a, b) = (tin.pts[a as usize], tin.pts[b as usize]);
-                let (dx, dz) = (b.x - a.x, b.z - a.z);
-                let len2 = dx * dx + dz * dz;
-                let cross = dx * (p.y - a.z) - dz * (p.x - a.x);
-                let along = (dx * (p.x - a.x) + dz * (p.y - a.z)) / len2;
-                cross.abs() <= within * len2.sqrt()
-                    && along > 0.0
-                    && along < 1.0
+                beside(&tin.pts[a as usize], &tin.pts[b as usize], p, within)
                     && tin.splits_cleanly(e, p)
                     && data_across(tin, grid, e)
             });
@@ -1268,6 +1257,16 @@ fn insert_interior(tin: &mut Tin, grid: &Window, t: u32, (j, i): (u32, u32), nes
         }
         Position::Vertex(_) | Position::Outside => {}
     }
+}
+
+/// Whether `p` lies within `within` cells of the segment a–b, its foot
+/// strictly between the ends.
+fn beside(a: &V, b: &V, p: Coord<f64>, within: f64) -> bool {
+    let (dx, dz) = (b.x - a.x, b.z - a.z);
+    let len2 = dx * dx + dz * dz;
+    let cross = dx * (p.y - a.z) - dz * (p.x - a.x);
+    let along = (dx * (p.x - a.x) + dz * (p.y - a.z)) / len2;
+    cross.abs() <= within * len2.sqrt() && along > 0.0 && along < 1.0
 }
 
 /// Whether the triangle across half-edge `e` covers a valid sample (or no

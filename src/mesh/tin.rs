@@ -413,8 +413,7 @@ impl Tin {
 
     /// The corners of the triangle across half-edge `e`, if any.
     pub fn across(&self, e: u32) -> Option<[V; 3]> {
-        let f = self.twin[e as usize];
-        (f != NONE).then(|| self.corners(f / 3))
+        self.twin_of(e).map(|f| self.corners(f / 3))
     }
 
     /// Whether splitting half-edge `e` at `p` ([`Tin::split_edge`]), a point
@@ -489,8 +488,9 @@ impl Tin {
     /// Flips the edge of half-edge `a` (not on the border): the triangles
     /// (pr, pl, p0) on `a` and (pl, pr, p1) across become (p0, pr, p1) and
     /// (p1, pl, p0), in the same slots, the new edge p1–p0 free. Returns the
-    /// two slots.
-    fn flip(&mut self, a: u32) -> (u32, u32) {
+    /// two slots (t, u); the new edge is half-edge `3 * t + 2`, and flipping
+    /// it undoes the flip.
+    pub fn flip(&mut self, a: u32) -> (u32, u32) {
         let b = self.twin[a as usize];
         let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
         let (pr, pl, p0) = (self.tv[a as usize], self.tv[an as usize], self.tv[ap as usize]);
@@ -501,12 +501,6 @@ impl Tin {
         self.set(t, [p0, pr, p1], [tw[1], tw[2], 3 * u + 2], [fx[1], fx[2], false]);
         self.set(u, [p1, pl, p0], [tw[3], tw[0], 3 * t + 2], [fx[3], fx[0], false]);
         (t, u)
-    }
-
-    /// Flips the free edge of half-edge `a` (see `flip`); returns the two
-    /// triangles' slots, the new edge being half-edge `3 * t + 2`.
-    pub fn flip_edge(&mut self, a: u32) -> (u32, u32) {
-        self.flip(a)
     }
 
     /// The half-edge across `e`, if any.
