@@ -306,24 +306,9 @@ impl Buckets {
         for bz in b(lz - margin, z0, nz)..=b(hz + margin, z0, nz) {
             let lo = if bz == 0 { f64::NEG_INFINITY } else { z0 + bz as f64 * cell - margin };
             let hi = if bz + 1 == nz { f64::INFINITY } else { z0 + (bz + 1) as f64 * cell + margin };
-            let (mut xmin, mut xmax) = (f64::INFINITY, f64::NEG_INFINITY);
-            for (a, q) in [(&p[0], &p[1]), (&p[1], &p[2]), (&p[2], &p[0])] {
-                let (za, zb) = (a.z.min(q.z).max(lo), a.z.max(q.z).min(hi));
-                if za > zb {
-                    continue;
-                }
-                if a.z == q.z {
-                    (xmin, xmax) = (xmin.min(a.x.min(q.x)), xmax.max(a.x.max(q.x)));
-                    continue;
-                }
-                for zc in [za, zb] {
-                    let x = a.x + (q.x - a.x) * ((zc - a.z) / (q.z - a.z));
-                    (xmin, xmax) = (xmin.min(x), xmax.max(x));
-                }
-            }
-            if xmin > xmax {
+            let Some((xmin, xmax)) = x_over_band(p, lo, hi) else {
                 continue;
-            }
+            };
             // Within the box: the clipped ends never leave it but by rounding.
             let (xmin, xmax) = (xmin.max(lx), xmax.min(hx));
             for c in b(xmin - margin, x0, nx)..=b(xmax + margin, x0, nx) {
@@ -343,6 +328,29 @@ impl Buckets {
 #[inline]
 fn bucket_index(v: f64, o: f64, cell: f64, n: usize) -> usize {
     (((v - o) / cell) as usize).min(n - 1)
+}
+
+/// The least and greatest x of triangle `tri` over the band of z in
+/// [`lo`, `hi`] (`None` if it does not reach the band): each edge clipped
+/// to the band, its x at the clipped ends (x is linear along an edge).
+fn x_over_band(tri: &[MeshVertex; 3], lo: f64, hi: f64) -> Option<(f64, f64)> {
+    let [a, b, d] = tri;
+    let (mut xmin, mut xmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (p, q) in [(a, b), (b, d), (d, a)] {
+        let (z0, z1) = (p.z.min(q.z).max(lo), p.z.max(q.z).min(hi));
+        if z0 > z1 {
+            continue;
+        }
+        if q.z == p.z {
+            (xmin, xmax) = (xmin.min(p.x.min(q.x)), xmax.max(p.x.max(q.x)));
+            continue;
+        }
+        for zc in [z0, z1] {
+            let x = p.x + (q.x - p.x) * ((zc - p.z) / (q.z - p.z));
+            (xmin, xmax) = (xmin.min(x), xmax.max(x));
+        }
+    }
+    (xmin <= xmax).then_some((xmin, xmax))
 }
 
 /// Visits every grid point (column `j`, row `i`) of `rows` × `cols` (whole
@@ -369,26 +377,9 @@ pub fn points_near_triangle(
     for i in rows.0 as usize..=rows.1 as usize {
         let z = i as f64;
         let (lo, hi) = (z - band, z + band);
-        // The triangle's x over the band z ∈ [lo, hi]: each edge clipped to
-        // the band, its x at the clipped ends (x is linear along an edge).
-        let (mut xmin, mut xmax) = (f64::INFINITY, f64::NEG_INFINITY);
-        for (p, q) in [(a, b), (b, d), (d, a)] {
-            let (z0, z1) = (p.z.min(q.z).max(lo), p.z.max(q.z).min(hi));
-            if z0 > z1 {
-                continue;
-            }
-            if q.z == p.z {
-                (xmin, xmax) = (xmin.min(p.x.min(q.x)), xmax.max(p.x.max(q.x)));
-                continue;
-            }
-            for zc in [z0, z1] {
-                let x = p.x + (q.x - p.x) * ((zc - p.z) / (q.z - p.z));
-                (xmin, xmax) = (xmin.min(x), xmax.max(x));
-            }
-        }
-        if xmin > xmax {
+        let Some((xmin, xmax)) = x_over_band(tri, lo, hi) else {
             continue;
-        }
+        };
         let margin = band + 1e-9 * (1.0 + xmin.abs().max(xmax.abs()));
         let j0 = (xmin - margin).ceil().max(cols.0);
         let j1 = (xmax + margin).floor().min(cols.1);
