@@ -1,4 +1,4 @@
-"""Whole-pipeline time against pydelatin, run by run (issue 5).
+"""Whole-pipeline time against pydelatin, run by run.
 
 `bench/peers.sh` times each tool's ladder in turn, so a machine whose speed
 drifts between the two halves moves the ratio. This script alternates them:
@@ -11,9 +11,8 @@ pydelatin mesh, repeated; it prints the medians and the ratios as CSV.
 Each build's output is kept until the end (a few hundred MB for Fuji's
 ladder), so that no build pays for deleting the one before it. With
 `--sync` the files are flushed to disk after each build, outside its time:
-without it, a virtual machine's slow writeback made later builds wait on
-the dirty pages of earlier ones (stop 29: Fuji at 2 m took 0.30-0.32 s
-after the 0.25-1 m builds, against 0.20 s at stop 28).
+without it, a virtual machine's slow writeback makes later builds wait on
+the dirty pages of earlier ones.
 
 GRID.npy is the grid `terrachunk bench DEM --square 513 --export-grid`
 writes; GRID.asc the same grid as an ESRI ASCII file for `terrachunk build`

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Peers side by side (issue 5): terrachunk (whole pipeline and one greedy
+# Peers side by side: terrachunk (whole pipeline and one greedy
 # TIN), pymartini and pydelatin on the SAME height grid, at the same max
 # errors; every mesh's true error measured by terrachunk's own checker; one
 # CSV and one plot with all of them.

@@ -11,12 +11,12 @@ use std::path::{Path, PathBuf};
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use terrachunk::bench::measure::{Window, scan};
+use terrachunk::config::NormalEncoding;
 use terrachunk::config::VertexCache;
 use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::Heightfield;
 use terrachunk::mesh::ChunkMesh;
 use terrachunk::mesh::decimate::{ChunkSpec, DividingLines, Grid, build_chunk};
-use terrachunk::output::compress::NormalEncoding;
 use terrachunk::output::gltf::{GlbContext, encode_glb};
 use terrachunk::pipeline::assemble;
 use terrachunk::quadtree::ChunkKey;

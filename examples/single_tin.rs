@@ -10,7 +10,7 @@
 //! power-of-two step `meshopt-v1` uses (at most `MAX_ERROR_M`/16) and on whole
 //! metres, and the triangles in strip order. No normals, morph deltas,
 //! skirts, coarser levels or JSON: the least any meshopt tileset whose finest
-//! level is a TIN to that error must write, per input sample (issue 7).
+//! level is a TIN to that error must write, per input sample.
 
 use std::path::PathBuf;
 use std::time::Instant;

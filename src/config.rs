@@ -5,7 +5,33 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::output::compress::{Meshopt, NormalEncoding};
+/// The meshoptimizer extension the quantized streams are compressed for
+/// (`output::compress` holds the codecs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Meshopt {
+    /// EXT_meshopt_compression (`compress = "meshopt"`): vertex codec
+    /// version 0, the only one it allows.
+    Ext,
+    /// KHR_meshopt_compression (`compress = "meshopt-v1"`): vertex codec
+    /// version 1.
+    Khr,
+}
+
+/// How quantized normals are chosen for meshoptimizer's OCTAHEDRAL filter,
+/// which stores two octahedral coordinates of `bits` bits in i8 components
+/// and decodes them to an i8 normalized unit vector (worst angles per
+/// encoding and bit count: docs/compression.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormalEncoding {
+    /// 8 bits, each coordinate rounded as meshoptimizer's encoder rounds it:
+    /// what `quantize` and `meshopt` have always written.
+    Rounded,
+    /// `bits` bits (2..=8), each normal the one of the four lattice points
+    /// around its octahedral coordinates whose *decoded* normal is nearest
+    /// it: rounding each coordinate on its own is not the nearest point on
+    /// the sphere, and the decoder's own rounding to i8 adds to it.
+    Nearest(u32),
+}
 
 /// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]

@@ -243,12 +243,10 @@ fn extent(verts: &[MeshVertex]) -> (f64, f64, f64, f64) {
 /// of the mesh's area shared out over its triangles (at most four buckets
 /// per triangle). A TIN is dense where the ground is rough and sparse
 /// where it is smooth, and the points asked of it come mostly from where
-/// it is dense (a child holds more triangles there too). Buckets twice
-/// the side of the average triangle (until stop 41) held 24 triangles at
-/// the average point `verify` asked on California's 4097² crop at 5 m,
-/// these 12 (with each triangle only where it reaches, [`Buckets::touched`];
-/// 40 with bounding boxes). 1, 1.5 and 2 times the median's side took
-/// `verify` there within the noise of each other.
+/// it is dense (a child holds more triangles there too), so buckets sized
+/// by the median triangle hold fewer triangles per lookup than buckets
+/// sized by the average one (with each triangle only where it reaches,
+/// [`Buckets::touched`]; docs/benchmarks.md).
 fn bucket_side(verts: &[MeshVertex], tris: &[[u32; 3]]) -> f64 {
     let (x0, x1, z0, z1) = extent(verts);
     let area = ((x1 - x0) * (z1 - z0)).max(1.0);

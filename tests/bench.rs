@@ -221,7 +221,7 @@ fn scaling_runs_each_window_and_thread_count() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("µs/sample"));
 }
 
-/// Issue 5, section 3: flat ground ends shallow. Half a grid flat, half
+/// Flat ground ends shallow. Half a grid flat, half
 /// hills: the error-bounded tree stops over the flat half, the complete tree
 /// (every chunk to the deepest level) does not, and both verify.
 #[test]

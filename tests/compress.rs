@@ -15,8 +15,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde_json::Value;
+use terrachunk::config::NormalEncoding;
 use terrachunk::config::{Compress, Config, NORMAL_BITS_V1, VertexCache};
-use terrachunk::output::compress::{NormalEncoding, cosine, decompress, octahedral};
+use terrachunk::output::compress::{cosine, decompress, octahedral};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 

@@ -1,4 +1,4 @@
-//! Hard cases: inputs that break naive terrain code (issue 5, section 2).
+//! Hard cases: inputs that break naive terrain code.
 //!
 //! Each one either builds and then passes every independent check — `verify`
 //! (error bound per level and at the leaves, coverage, shared borders, morph
@@ -659,7 +659,7 @@ fn neighbours_of_different_relief_split_their_shared_border_alike() {
     }
 }
 
-/// Was a cost, not a bug (issue 5): the mesher met 0.98·δ everywhere, to
+/// Was a cost, not a bug: the mesher met 0.98·δ everywhere, to
 /// leave room for f32 rounding, so on integer heights every sample exactly
 /// δ off became a vertex, some 10 % more triangles than a TIN to δ. Sample
 /// corners are now written exactly and only triangles at cut points keep a
@@ -816,7 +816,7 @@ fn a_quantized_build_turns_no_sliver_beside_a_parent_edge_over() {
 }
 
 /// Sierra 3 × 3 at 5 m with 16-cell leaves, `quantize` (79 000 chunks):
-/// chunk 6/52/44 held one triangle turned over, left by stop 39's fix. In
+/// chunk 6/52/44 held one triangle turned over. In
 /// its parent a sample lay 2.7·10⁻⁵ cells from a free edge, in a fan of
 /// nearly parallel edges; the child's crossings of that fan, moved onto
 /// the lattice, could not all keep their side. The parent now flips such

@@ -335,8 +335,8 @@ fn the_leaf_width_is_the_shallowest_tree_within_8000_vertices_per_chunk() {
 /// levels its too-dense upper chunks need. France–Italy (ETOPO2, 780 × 510,
 /// whole metres) at 0.1 m: 64-cell leaves without refine levels make upper
 /// chunks far over `max_chunk_vertices`, chunks no build makes, and they
-/// put the 64-cell tree over 8 000 vertices per chunk; judged so (until
-/// stop 29), the choice fell to 32-cell leaves, with one level more. Built
+/// put the 64-cell tree over 8 000 vertices per chunk; judged so, the
+/// choice fell to 32-cell leaves, with one level more. Built
 /// with its refine levels, the 64-cell tree is within the bound, and it is
 /// the one chosen.
 #[test]

@@ -1,5 +1,5 @@
 //! Bench: speed against error, measured the same way for terrachunk and for
-//! the tools it is compared with (issue 5, section 1).
+//! the tools it is compared with.
 //!
 //! - [`ladder`]: for each DEM and each `max_error_m`, a warm-up and N timed
 //!   runs of the whole pipeline, each in its own `terrachunk build` child
@@ -15,12 +15,15 @@
 //!   measured by the same [`measure`] code.
 //! - [`scaling`]: time and peak memory for centred windows holding 1/16,
 //!   1/4, ... of a DEM's samples, per thread count (`scaling.csv`).
-//! - [`plot`]: triangles and time against max error, log–log (PNG, SVG).
+//! - `plot`: triangles and time against max error, log–log (PNG, SVG),
+//!   with the `plots` feature (on by default; the viewer builds without it,
+//!   so it never compiles plotters or the font).
 //! - [`savings`]: chunks, triangles and bytes of the error-bounded tree
 //!   against a complete tree to the same leaf error (`savings.csv`).
 
 pub mod grid;
 pub mod measure;
+#[cfg(feature = "plots")]
 pub mod plot;
 pub mod savings;
 pub mod table;
@@ -506,6 +509,7 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
     }
     let csv = o.base.out.join("bench.csv");
     table::write(&csv, &rows, o.append)?;
+    #[cfg(feature = "plots")]
     replot(&o.base.out)?;
     Ok(rows)
 }
@@ -584,10 +588,17 @@ fn single_tin_row(base: &Row, e: f64, s: &SingleTin) -> Row {
     }
 }
 
-/// Redraws `dir/bench.png` and `dir/bench.svg` from `dir/bench.csv`.
+/// Redraws `dir/bench.png` and `dir/bench.svg` from `dir/bench.csv`; a
+/// build without the `plots` feature says it cannot.
 pub fn replot(dir: &Path) -> Result<(), BenchError> {
     let rows = table::read(&dir.join("bench.csv"))?;
-    plot::plot(&rows, &dir.join("bench.png"), &dir.join("bench.svg"))
+    #[cfg(feature = "plots")]
+    return plot::plot(&rows, &dir.join("bench.png"), &dir.join("bench.svg"));
+    #[cfg(not(feature = "plots"))]
+    {
+        let _ = rows;
+        Err(BenchError::Plot("this terrachunk was built without the `plots` feature".into()))
+    }
 }
 
 /// Writes the grid a benchmark of `dem` with `cut` runs on as `.npy`
@@ -684,6 +695,7 @@ pub fn import_peers(
     }
     std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
     table::write(&out.join("bench.csv"), &rows, true)?;
+    #[cfg(feature = "plots")]
     replot(out)?;
     Ok(rows)
 }

@@ -1,4 +1,4 @@
-//! What the error-bounded tree saves (issue 5, section 3): each DEM is built
+//! What the error-bounded tree saves: each DEM is built
 //! twice at the same `max_error_m`, once as shipped (a subtree ends where its
 //! chunk already meets the leaf error) and once with `complete_tree` (every
 //! chunk refined to the deepest level), and the two are compared in chunks,

@@ -788,9 +788,9 @@ fn insert_by_parts(
 ///   δ 8 m), so a quantized chunk is measured again as it will be written
 ///   and meshed with a smaller share where it misses (`ChunkSpec::cut_share`).
 ///
-/// Until issue 5 the 2 % applied everywhere: on integer heights many samples
-/// lie within 2 % of δ, and meshing to 0.98·δ cost some 10 % more triangles
-/// than a TIN to δ.
+/// The margin is not applied everywhere: on integer heights many samples
+/// lie within 2 % of δ, and meshing to 0.98·δ would cost some 10 % more
+/// triangles than a TIN to δ.
 #[derive(Clone, Copy, Debug)]
 pub struct Targets {
     /// Where every corner is written exactly.
@@ -1140,7 +1140,7 @@ fn cut_pieces(
             // height there: that can be δ away, and where the line's
             // refinement puts a sample a hair from the crossing, the two
             // would make a near-vertical wall that the next level's cuts
-            // shred into slivers no f32 file can place (issue 3). Only the
+            // shred into slivers no f32 file can place. Only the
             // morph target must lie on the parent surface.
             let h = if (t - t.round()).abs() < 1e-6 {
                 t = t.round();

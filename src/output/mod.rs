@@ -3,5 +3,6 @@
 //! into a temporary directory that is renamed into place only when complete.
 
 pub mod compress;
+pub mod glb;
 pub mod gltf;
 pub mod tileset;
