@@ -66,13 +66,13 @@ enum Command {
         normal_map: bool,
         /// Widest a deepest-level chunk may be, in cells, 2..=4096 [default:
         /// chosen from the data]. Wider leaves make a smaller tileset with
-        /// fewer leaf triangles but cull in bigger pieces (README, "Chunk size").
+        /// fewer leaf triangles but cull in bigger pieces (docs/settings.md, "Chunk size").
         #[arg(long)]
         leaf_cells: Option<u32>,
         /// Widest a top-level chunk may be, in cells, 2..=65536 [default:
         /// one top-level chunk]. Narrower top chunks make a tree with fewer
         /// levels: fewer leaf triangles and a smaller tileset, but a far view
-        /// that draws every top chunk (README, "Top-level chunks").
+        /// that draws every top chunk (docs/settings.md, "Top-level chunks").
         #[arg(long)]
         root_cells: Option<u32>,
         /// Most surface vertices one chunk may hold, 65535..=16777215

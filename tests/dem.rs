@@ -920,10 +920,8 @@ const CORPUS: &[(&str, usize, usize, f64, f64, usize, f64)] = &[
 #[test]
 #[ignore = "needs shared/dem; run in release: cargo test --release -- --ignored"]
 fn real_corpus_matches_readme() {
-    let Some(dir) = shared_dem() else {
-        eprintln!("shared/dem not found; skipping");
-        return;
-    };
+    // Run on purpose (it is ignored), it must not pass without its data.
+    let dir = shared_dem().expect("needs shared/dem beside the repository, or TERRACHUNK_DEM_DIR");
     for &(name, w, h, min, max, nodata, tol) in CORPUS {
         let t = std::time::Instant::now();
         let hf = ok(&dir.join(name));
@@ -978,10 +976,7 @@ fn real_corpus_matches_readme() {
 #[test]
 #[ignore = "writes fixtures/ from shared/dem"]
 fn regenerate_fixtures() {
-    let Some(dem) = shared_dem() else {
-        eprintln!("shared/dem not found; nothing to regenerate");
-        return;
-    };
+    let dem = shared_dem().expect("needs shared/dem beside the repository, or TERRACHUNK_DEM_DIR");
     let out = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
     std::fs::create_dir_all(out.join("hgt_mosaic")).unwrap();
 

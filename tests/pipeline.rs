@@ -839,3 +839,17 @@ fn pipeline_toml_documents_exactly_the_defaults() {
     assert_eq!(cfg, Config::default());
     cfg.validate().unwrap();
 }
+
+/// The README shows `terrachunk --help` and `terrachunk build --help` as
+/// the binary prints them, so its usage cannot drift from the options.
+#[test]
+fn readme_shows_the_commands_help_as_printed() {
+    let readme = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    for args in [&["--help"][..], &["build", "--help"]] {
+        let o = crate::common::cli(args);
+        assert!(o.status.success());
+        let help = String::from_utf8(o.stdout).unwrap();
+        let block = format!("```text\n{}\n```", help.trim_end());
+        assert!(readme.contains(&block), "README.md lacks `terrachunk {}` as printed:\n{block}", args.join(" "));
+    }
+}

@@ -5,6 +5,7 @@ mod bench;
 mod common;
 mod compress;
 mod dem;
+mod goldens;
 mod hard_cases;
 mod pipeline;
 mod placement;
