@@ -10,7 +10,7 @@ use terrachunk::bench;
 use terrachunk::config::{Compress, Config, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
 use terrachunk::texture::TextureSource;
-use terrachunk::verify::{read_chunk, verify_with_progress};
+use terrachunk::verify::verify_with_progress;
 
 #[derive(Parser)]
 #[command(name = "terrachunk", version, about = "DEM → Chunked-LOD glTF tileset with a 3D Tiles 1.1 index")]
@@ -386,57 +386,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
         }
         Command::View { args } => view(&args),
-        Command::Inspect { glb } => {
-            let c = match read_chunk(&glb) {
-                Ok(c) => c,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return Ok(ExitCode::from(2));
-                }
-            };
-            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-            for p in c.surface.positions.iter().chain(c.skirt.iter().flat_map(|s| &s.positions)) {
-                for a in 0..3 {
-                    lo[a] = lo[a].min(p[a]);
-                    hi[a] = hi[a].max(p[a]);
-                }
+        Command::Inspect { glb } => match terrachunk::verify::inspect(&glb) {
+            Ok(i) => {
+                print!("{i}");
+                Ok(ExitCode::SUCCESS)
             }
-            let dys = c.surface.morph_dy.iter().chain(c.skirt.iter().flat_map(|s| &s.morph_dy));
-            let (mlo, mhi) = dys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| (a.min(d), b.max(d)));
-            println!("chunk      {}/{}/{}", c.key.level, c.key.x, c.key.y);
-            println!("delta_m    {}", c.delta_m);
-            println!(
-                "footprint  columns {}..={}, rows {}..={}",
-                c.footprint[0], c.footprint[1], c.footprint[2], c.footprint[3]
-            );
-            println!("surface    {} vertices, {} triangles", c.surface.positions.len(), c.surface.triangles.len());
-            if let Some(s) = &c.skirt {
-                println!("skirt      {} vertices, {} triangles", s.positions.len(), s.triangles.len());
+            Err(e) => {
+                eprintln!("error: {e}");
+                Ok(ExitCode::from(2))
             }
-            println!(
-                "bounds     x {:.3}..{:.3}  y {:.3}..{:.3}  z {:.3}..{:.3} (m)",
-                lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-            );
-            println!("morph dy   {mlo:.4}..{mhi:.4} m");
-            if let Some(t) = &c.texture {
-                let spacing = |a: usize| {
-                    let cells = f64::from(c.footprint[2 * a + 1] - c.footprint[2 * a]);
-                    cells * c.spacing_m[a] / f64::from([t.colour.width, t.colour.height][a] - 1)
-                };
-                println!(
-                    "texture    {} × {} texels ({}), T_g {:.4} × {:.4} m",
-                    t.colour.width,
-                    t.colour.height,
-                    t.colour.mime,
-                    spacing(0),
-                    spacing(1)
-                );
-                if let Some((n, set)) = &t.normal {
-                    println!("normal map {} × {} texels (TEXCOORD_{set})", n.width, n.height);
-                }
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        },
         Command::Bench(args) => match run_bench(args) {
             Ok(()) => Ok(ExitCode::SUCCESS),
             Err(e) => {

@@ -24,7 +24,9 @@ use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
 use crate::output::gltf::{GlbContext, encode_glb};
-use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtras, tile_uri, tileset_json};
+use crate::output::tileset::{
+    GridSize, MorphConvention, SourceFile, TileRecord, TilesetExtras, tile_uri, tileset_json,
+};
 use crate::progress;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
@@ -304,6 +306,8 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     let t_idx = Instant::now();
     let finish = || -> Result<u64, BuildError> {
         let mut extras = tileset_extras(&hf, opts, &tree);
+        extras.source =
+            SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
         extras.texture = texture;
         let doc = tileset_json(&tree, &records, &extras);
         // Compact: a client reads the whole index before it draws anything,
@@ -971,7 +975,7 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
         tau_max_px: opts.config.tau_max_px,
         levels: tree.depth() + 1,
         delta_m: tree.delta_m.clone(),
-        source: opts.inputs.iter().map(|p| p.display().to_string()).collect(),
+        source: Vec::new(),
         georef: hf.georef.clone(),
         placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m),
         morph: MorphConvention {

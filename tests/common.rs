@@ -43,9 +43,33 @@ pub(crate) fn build_ok(dem: &Path, max_error_m: f64) -> (tempfile::TempDir, Path
 /// on the parent surface.
 #[track_caller]
 pub(crate) fn verified(out: &Path) -> VerifyReport {
-    let r = verify(out, None).unwrap();
+    let r = verify(out, Some(&dem_of(out))).unwrap();
     assert!(r.failures.is_empty(), "verify failed for {}:\n{}", out.display(), r.failures.join("\n"));
     r
+}
+
+/// The DEM files a tileset names (`extras.terrachunk.source`), found
+/// where the tests keep them: beside the tileset or the folder above it
+/// (where `verify` itself looks), or among the fixtures, which tests build
+/// from in place.
+#[track_caller]
+pub(crate) fn dem_of(out: &Path) -> Vec<PathBuf> {
+    let ts = tileset(out);
+    let names: Vec<&str> = ts["extras"]["terrachunk"]["source"]
+        .as_array()
+        .expect("extras.terrachunk.source")
+        .iter()
+        .map(|s| s["name"].as_str().expect("a source name"))
+        .collect();
+    names
+        .iter()
+        .map(|name| {
+            [out.join(name), out.join("..").join(name), fixture(name), fixture("hgt_mosaic").join(name)]
+                .into_iter()
+                .find(|p| p.is_file())
+                .unwrap_or_else(|| panic!("{}: its DEM {name} is nowhere the tests keep DEMs", out.display()))
+        })
+        .collect()
 }
 
 /// Runs the Khronos glTF validator (npm `gltf-validator`) over every .glb.

@@ -21,7 +21,9 @@ use terrachunk::output::compress::{cosine, decompress, octahedral};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 
-use crate::common::{all_files, assert_bad_input, cli, fixture, khronos_validate, verified, with_config, write_asc};
+use crate::common::{
+    all_files, assert_bad_input, cli, dem_of, fixture, khronos_validate, verified, with_config, write_asc,
+};
 
 fn build_mode(dem: &Path, out: &Path, compress: Compress, texture: TextureSource, threads: usize) -> Report {
     let config = Config { max_error_m: 1.0, threads, compress, ..Config::default() };
@@ -576,7 +578,8 @@ fn inspect_reads_meshopt_chunks_and_the_flag_reaches_the_build() {
         let o = cli(&["inspect", glb.to_str().unwrap()]);
         let text = String::from_utf8_lossy(&o.stdout);
         assert!(o.status.success() && text.contains("surface") && text.contains("vertices"), "{mode}: {text}");
-        let o = cli(&["verify", out.to_str().unwrap()]);
+        let dem = dem_of(&out);
+        let o = cli(&["verify", out.to_str().unwrap(), "--dem", dem[0].to_str().unwrap()]);
         assert!(o.status.success(), "{mode}: {}", String::from_utf8_lossy(&o.stdout));
     }
 }

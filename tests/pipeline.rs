@@ -17,7 +17,7 @@ use terrachunk::quadtree::estimate::{CHUNK_VERTICES, Estimate};
 use terrachunk::verify::{read_chunk, verify};
 
 use crate::common::{
-    Mangler, all_files, assert_bad_input, build_ok, cli, fixture, khronos_validate, mangle_rounds, options,
+    Mangler, all_files, assert_bad_input, build_ok, cli, dem_of, fixture, khronos_validate, mangle_rounds, options,
     rewrite_glb, tileset, verified, with_config, write_asc,
 };
 
@@ -431,12 +431,18 @@ fn verify_names_the_chunk_whose_vertex_was_moved() {
         let y = j["nodes"][0]["translation"][1].as_f64().unwrap();
         j["nodes"][0]["translation"][1] = serde_json::json!(y + 3.0);
     });
-    let r = verify(&out, None).unwrap();
+    let r = verify(&out, Some(&dem_of(&out))).unwrap();
     let stem = victim.with_extension("");
     let parts: Vec<String> = stem.components().skip(1).map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
     let name = parts.join("/");
     assert!(r.failures.iter().any(|f| f.contains(&name) && f.contains("exceeds δ")), "{:?}", r.failures);
-    let code = Command::new(env!("CARGO_BIN_EXE_terrachunk")).arg("verify").arg(&out).status().unwrap();
+    let code = Command::new(env!("CARGO_BIN_EXE_terrachunk"))
+        .arg("verify")
+        .arg(&out)
+        .arg("--dem")
+        .args(dem_of(&out))
+        .status()
+        .unwrap();
     assert_eq!(code.code(), Some(1));
 }
 
@@ -452,7 +458,7 @@ fn verify_names_an_unreadable_chunk_and_still_checks_its_children() {
     let path = out.join(&victim);
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
-    let r = verify(&out, None).unwrap();
+    let r = verify(&out, Some(&dem_of(&out))).unwrap();
     let name: Vec<String> =
         victim.with_extension("").components().skip(1).map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
     let name = name.join("/");
@@ -542,6 +548,7 @@ fn verify_survives_a_number_changed_in_any_file() {
     let out = tmp.path().join("out");
     let cfg = Config { max_error_m: 0.5, leaf_cells: Some(32), ..Config::default() };
     build(&with_config(&fixture("fuji_crop_terrainrgb.png"), &out, cfg)).unwrap();
+    let dem = dem_of(&out);
     let files: Vec<_> =
         all_files(&out).into_iter().filter(|(p, _)| p.extension().is_some_and(|e| e == "glb" || e == "json")).collect();
     for k in 0..mangle_rounds() {
@@ -556,7 +563,7 @@ fn verify_survives_a_number_changed_in_any_file() {
         } else {
             rewrite_glb(&p, |j, _| set(j));
         }
-        if let Err(e) = verify(&out, None) {
+        if let Err(e) = verify(&out, Some(&dem)) {
             let e = e.to_string();
             assert!(e.contains(&*rel.to_string_lossy()) || e.contains("fuji_crop"), "{} {said}: {e}", rel.display());
         }
@@ -764,7 +771,8 @@ fn summary_report_and_inspect_tell_the_user_what_was_built() {
         text.contains("chunk      0/0/0") && text.contains("triangles") && text.contains("morph dy   0.0000..0.0000"),
         "{text}"
     );
-    let o = cli(&["verify", out.to_str().unwrap()]);
+    let dem = dem_of(&out);
+    let o = cli(&["verify", out.to_str().unwrap(), "--dem", dem[0].to_str().unwrap()]);
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("OK"));
 }
 

@@ -16,7 +16,7 @@ use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify;
 
 use crate::common::{
-    Mangler, all_files, fixture, khronos_validate, mangle_rounds, rewrite_glb, tileset, verified, write_asc,
+    Mangler, all_files, dem_of, fixture, khronos_validate, mangle_rounds, rewrite_glb, tileset, verified, write_asc,
 };
 
 fn build_with(dem: &Path, out: &Path, config: Config, texture: TextureSource) -> Report {
@@ -541,7 +541,7 @@ fn verify_catches_coarse_texels_moved_texcoords_and_mismatched_borders() {
     build_with(&fixture("jacksboro_fault_u16.png"), &out, cfg, TextureSource::Generated);
     verified(&out);
     let failures = |what: &str| {
-        let r = verify(&out, None).unwrap();
+        let r = verify(&out, Some(&dem_of(&out))).unwrap();
         assert!(r.failures.iter().any(|f| f.contains(what)), "expected {what:?} in {:?}", r.failures);
     };
 
@@ -673,7 +673,8 @@ fn texture_none_and_the_texture_flags_on_the_command_line() {
     let o = cli(&["inspect", b.join("tiles/0/0/0.glb").to_str().unwrap()]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("texture") && text.contains("image/jpeg") && text.contains("normal map"), "{text}");
-    let o = cli(&["verify", b.to_str().unwrap()]);
+    let dem = dem_of(&b);
+    let o = cli(&["verify", b.to_str().unwrap(), "--dem", dem[0].to_str().unwrap()]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success() && text.contains("texture seams compared") && text.contains("OK"), "{text}");
 }

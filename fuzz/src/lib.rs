@@ -87,3 +87,87 @@ pub fn read_chunk_bytes(data: &[u8]) {
         assert!(prim.uv.is_empty() || prim.uv.len() == n, "{} texture coordinates for {n} vertices", prim.uv.len());
     }
 }
+
+/// A small tileset (a 17 × 17 grid of rolling ground, untextured, three
+/// levels) built once per process in a scratch folder, with its DEM beside
+/// it, and the bytes of each of its files: `tileset.json` first, then the
+/// chunks in path order.
+struct Template {
+    dir: PathBuf,
+    files: Vec<(PathBuf, Vec<u8>)>,
+}
+
+fn template() -> &'static Template {
+    static TEMPLATE: std::sync::OnceLock<Template> = std::sync::OnceLock::new();
+    TEMPLATE.get_or_init(|| {
+        use terrachunk::config::Config;
+        use terrachunk::pipeline::{BuildOptions, build};
+        let root = scratch("tileset");
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).expect("scratch folder");
+        let dem = root.join("dem.asc");
+        let mut text = String::from("ncols 17\nnrows 17\nxllcorner 0\nyllcorner 0\ncellsize 10\n");
+        for i in 0..17 {
+            let row: Vec<String> =
+                (0..17).map(|j| format!("{:.2}", 100.0 + 20.0 * ((i * 7 + j * 3) as f64 / 9.0).sin())).collect();
+            text += &(row.join(" ") + "\n");
+        }
+        std::fs::write(&dem, text).expect("write the DEM");
+        let dir = root.join("out");
+        let config = Config { max_error_m: 0.5, leaf_cells: Some(4), threads: 1, ..Config::default() };
+        let options = BuildOptions {
+            inputs: vec![dem],
+            out: dir.clone(),
+            force: false,
+            config,
+            texture: terrachunk::texture::TextureSource::None,
+            progress: false,
+        };
+        build(&options).expect("the template tileset builds");
+        let mut files = vec![PathBuf::from("tileset.json")];
+        let mut stack = vec![dir.join("tiles")];
+        let mut chunks = Vec::new();
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).expect("tiles folder") {
+                let p = e.expect("entry").path();
+                if p.is_dir() { stack.push(p) } else { chunks.push(p.strip_prefix(&dir).expect("inside").to_path_buf()) }
+            }
+        }
+        chunks.sort();
+        files.extend(chunks);
+        let files = files.into_iter().map(|f| (f.clone(), std::fs::read(dir.join(&f)).expect("read back"))).collect();
+        Template { dir, files }
+    })
+}
+
+/// Replaces files of the template tileset with parts of `data` and runs
+/// `verify` on it, as a user would on a damaged or hostile tileset: any
+/// input gives a report or an error, never a panic, a hang or a read
+/// outside the tileset. `data` is a list of records, each a file index
+/// byte (0: `tileset.json`, then the chunks, modulo their count), a
+/// little-endian u16 length and that many bytes (cut short at the end).
+/// No record leaves the tileset as built, which must verify clean.
+pub fn verify_tileset_bytes(data: &[u8]) -> Option<terrachunk::verify::VerifyReport> {
+    let t = template();
+    let mut touched = vec![false; t.files.len()];
+    let mut rest = data;
+    let mut replaced: Vec<(usize, &[u8])> = Vec::new();
+    while rest.len() >= 3 {
+        let which = rest[0] as usize % t.files.len();
+        let len = u16::from_le_bytes([rest[1], rest[2]]) as usize;
+        let body = &rest[3..(3 + len).min(rest.len())];
+        replaced.push((which, body));
+        touched[which] = true;
+        rest = &rest[3 + body.len()..];
+    }
+    for (i, (path, bytes)) in t.files.iter().enumerate() {
+        let new = replaced.iter().rev().find(|(w, _)| *w == i).map_or(bytes.as_slice(), |(_, b)| b);
+        std::fs::write(t.dir.join(path), new).expect("write a file of the tileset");
+    }
+    let result = terrachunk::verify::verify(&t.dir, None);
+    if !touched.iter().any(|&x| x) {
+        let report = result.as_ref().expect("the built tileset verifies");
+        assert!(report.failures.is_empty(), "the built tileset fails: {:?}", report.failures);
+    }
+    result.ok()
+}

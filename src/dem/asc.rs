@@ -12,6 +12,7 @@
 //! header says so (`NODATA_value nan`); anywhere else it is refused, as is a
 //! value `f32` cannot hold within 1 mm (see [`super::MAX_ROUNDING_M`]).
 
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 use super::{DemError, check_stored, corrupt, file_name, invalid, io_error, sample_count};
@@ -30,27 +31,92 @@ struct Header {
     nodata: Option<f32>,
 }
 
-/// Read an ESRI ASCII grid.
+/// The longest token (keyword or number) a grid may hold, bytes: a height
+/// written with every digit an `f64` has is under 30.
+const MAX_TOKEN: usize = 64;
+
+/// Whitespace-separated tokens read in pieces from a file, with the line
+/// each starts on: the file is never held whole, so a huge one costs only
+/// its grid, and a file with no whitespace costs a token's worth.
+struct Tokens<R> {
+    r: R,
+    /// The current token and its line (1-based).
+    token: Vec<u8>,
+    token_line: usize,
+    line: usize,
+    /// A token read ahead (the first of the body, found by the header loop).
+    held: bool,
+}
+
+impl<R: BufRead> Tokens<R> {
+    /// Reads the next token into `self.token`; false at the end of the file.
+    fn next(&mut self, path: &Path) -> Result<bool, DemError> {
+        if std::mem::take(&mut self.held) {
+            return Ok(true);
+        }
+        self.token.clear();
+        loop {
+            let buf = self.r.fill_buf().map_err(|e| io_error(path, e))?;
+            if buf.is_empty() {
+                return Ok(!self.token.is_empty());
+            }
+            let mut used = 0;
+            let mut ended = false;
+            for &b in buf {
+                used += 1;
+                if b.is_ascii_whitespace() {
+                    if b == b'\n' {
+                        self.line += 1;
+                    }
+                    if !self.token.is_empty() {
+                        ended = true;
+                        break;
+                    }
+                } else {
+                    if self.token.is_empty() {
+                        self.token_line = self.line;
+                    }
+                    if self.token.len() == MAX_TOKEN {
+                        return Err(corrupt(
+                            path,
+                            format!("line {}: a token longer than {MAX_TOKEN} bytes; not a grid", self.line),
+                        ));
+                    }
+                    self.token.push(b);
+                }
+            }
+            self.r.consume(used);
+            if ended {
+                return Ok(true);
+            }
+        }
+    }
+
+    fn text(&self, path: &Path) -> Result<&str, DemError> {
+        std::str::from_utf8(&self.token)
+            .map_err(|e| corrupt(path, format!("line {}: not a text file: {e}", self.token_line)))
+    }
+}
+
+/// Read an ESRI ASCII grid: the header first, checked, then the values,
+/// streamed from the file.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| corrupt(path, format!("not a text file: {e}")))?;
+    let file = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
+    let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+    let mut tokens = Tokens { r: BufReader::new(file), token: Vec::new(), token_line: 1, line: 1, held: false };
 
     let mut header = Header::default();
-    let mut lines = text.lines().enumerate().peekable();
-    while let Some(&(i, line)) = lines.peek() {
-        let mut tokens = line.split_ascii_whitespace();
-        let Some(key) = tokens.next() else {
-            lines.next();
-            continue;
-        };
-        if !key.starts_with(|c: char| c.is_ascii_alphabetic()) || is_number(key) {
+    while tokens.next(path)? {
+        let key = tokens.text(path)?.to_string();
+        if !key.starts_with(|c: char| c.is_ascii_alphabetic()) || is_number(&key) {
+            tokens.held = true; // the first value
             break;
         }
-        lines.next();
-        let line_no = i + 1;
-        let value = tokens
-            .next()
-            .ok_or_else(|| corrupt(path, format!("line {line_no}: header keyword {key:?} has no value")))?;
+        let line_no = tokens.token_line;
+        if !tokens.next(path)? || tokens.token_line != line_no {
+            return Err(corrupt(path, format!("line {line_no}: header keyword {key:?} has no value")));
+        }
+        let value = tokens.text(path)?;
         let num = || {
             value
                 .parse::<f64>()
@@ -94,38 +160,44 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     };
     let expected = sample_count(path, ncols, nrows)?;
 
-    // Never reserve more than the text could hold (two bytes per value), so a
-    // lying header cannot make us allocate gigabytes.
-    let mut heights = Vec::with_capacity(expected.min(text.len() / 2 + 1));
+    // Each value takes at least two bytes (a digit and a separator), so a
+    // header promising more than the file can hold is refused before the
+    // body is read, and nothing is reserved beyond what it could hold.
+    if (expected as u64).saturating_mul(2) > file_len.saturating_add(1) {
+        return Err(corrupt(
+            path,
+            format!(
+                "the header promises ncols × nrows = {ncols} × {nrows} = {expected} values but the file is only \
+                 {file_len} bytes"
+            ),
+        ));
+    }
+    let mut heights = Vec::with_capacity(expected);
     let mut found = 0usize;
-    for (i, line) in lines {
-        for token in line.split_ascii_whitespace() {
-            let v: f32 =
-                token.parse().map_err(|_| corrupt(path, format!("line {}: {token:?} is not a number", i + 1)))?;
-            found += 1;
-            if found > expected {
-                continue;
-            }
-            if Some(v) == header.nodata {
-                heights.push(f32::NAN);
-                continue;
-            }
-            if v.is_nan() && !header.nodata.is_some_and(f32::is_nan) {
-                // Text declares its nodata; a NaN is a broken export, not a hole.
-                let declared = header.nodata.map_or("not declared".to_string(), |n| n.to_string());
-                return Err(invalid(
-                    path,
-                    format!("line {}: {token:?} is not a height (NODATA_value is {declared})", i + 1),
-                ));
-            }
-            if v.abs() >= 32_768.0 {
-                // Far from 0 the nearest f32 may be more than 1 mm off (or
-                // infinite where the text is merely large).
-                let exact: f64 = token.parse().expect("a token that parses as f32 parses as f64");
-                check_stored(exact, v).map_err(|e| invalid(path, format!("line {}: {e}", i + 1)))?;
-            }
-            heights.push(v);
+    while tokens.next(path)? {
+        let line = tokens.token_line;
+        let token = tokens.text(path)?;
+        let v: f32 = token.parse().map_err(|_| corrupt(path, format!("line {line}: {token:?} is not a number")))?;
+        found += 1;
+        if found > expected {
+            continue;
         }
+        if Some(v) == header.nodata {
+            heights.push(f32::NAN);
+            continue;
+        }
+        if v.is_nan() && !header.nodata.is_some_and(f32::is_nan) {
+            // Text declares its nodata; a NaN is a broken export, not a hole.
+            let declared = header.nodata.map_or("not declared".to_string(), |n| n.to_string());
+            return Err(invalid(path, format!("line {line}: {token:?} is not a height (NODATA_value is {declared})")));
+        }
+        if v.abs() >= 32_768.0 {
+            // Far from 0 the nearest f32 may be more than 1 mm off (or
+            // infinite where the text is merely large).
+            let exact: f64 = token.parse().expect("a token that parses as f32 parses as f64");
+            check_stored(exact, v).map_err(|e| invalid(path, format!("line {line}: {e}")))?;
+        }
+        heights.push(v);
     }
     if found != expected {
         return Err(corrupt(
@@ -168,7 +240,18 @@ fn is_number(token: &str) -> bool {
 /// A `.prj` beside the grid whose WKT is a geographic (not projected) CRS.
 fn prj_is_geographic(path: &Path) -> bool {
     let prj = path.with_extension("prj");
-    match std::fs::read_to_string(prj) {
+    // Only a regular file, and only its start: a FIFO or a huge file
+    // named like the grid must not stall the load.
+    let read = |p: &Path| -> std::io::Result<String> {
+        use std::io::Read;
+        if !std::fs::metadata(p)?.is_file() {
+            return Err(std::io::ErrorKind::InvalidInput.into());
+        }
+        let mut text = String::new();
+        std::fs::File::open(p)?.take(1 << 16).read_to_string(&mut text)?;
+        Ok(text)
+    };
+    match read(&prj) {
         Ok(wkt) => {
             let upper = wkt.to_ascii_uppercase();
             let upper = upper.trim_start();

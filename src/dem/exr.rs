@@ -8,7 +8,7 @@ use std::path::Path;
 
 use ::exr::prelude::{AnyChannel, FlatSamples, ReadChannels, ReadLayers};
 
-use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
+use super::{DemError, check_expansion, corrupt, file_name, io_error, sample_count, unsupported};
 use crate::heightfield::Heightfield;
 
 /// Channel names that mean "the height", most preferred first.
@@ -23,14 +23,9 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let meta = ::exr::meta::MetaData::read_from_file(path, true).map_err(|e| exr_error(path, e))?;
     for header in &meta.headers {
         let (w, h) = (header.layer_size.0, header.layer_size.1);
-        let n = sample_count(path, w, h)?;
-        let raw = (n as u64).saturating_mul(header.channels.bytes_per_pixel as u64);
-        if raw > file_len.saturating_mul(8192).saturating_add(1 << 20) {
-            return Err(corrupt(
-                path,
-                format!("the header promises {w} × {h} pixels but the file is only {file_len} bytes"),
-            ));
-        }
+        sample_count(path, w, h)?;
+        let bytes_per_pixel = header.channels.bytes_per_pixel as u64;
+        check_expansion((w, h), bytes_per_pixel.max(4), file_len).map_err(|e| corrupt(path, e))?;
     }
     let image = ::exr::prelude::read()
         .no_deep_data()

@@ -22,15 +22,17 @@
 //! therefore scaled by cos(latitude) at the grid centre, so heights and
 //! horizontal distances are both true metres.
 
+use std::cell::Cell;
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
+use std::rc::Rc;
 
 use tiff::TiffError;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 
-use super::{DemError, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
+use super::{DemError, check_expansion, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 /// GeoKey ids (GeoTIFF 1.1, section 7).
@@ -43,31 +45,78 @@ const PROJ_LINEAR_UNITS: u16 = 3076;
 /// EPSG codes that name spherical Web Mercator.
 const WEB_MERCATOR: [u32; 5] = [3857, 3785, 900_913, 102_100, 102_113];
 
+/// The file under the decoder, readable only within one byte range while
+/// a strip or tile is decoded: the `tiff` crate reads an uncompressed or
+/// DEFLATE chunk for as long as its decoder asks, past the byte count the
+/// file declares for it, into the next chunk, the tags or padding.
+struct Fenced {
+    file: File,
+    pos: u64,
+    /// `[start, end)` while a chunk is read, shared with [`read_chunks`].
+    fence: Rc<Cell<Option<(u64, u64)>>>,
+    /// Set when a read stopped at the fence's end.
+    hit: Rc<Cell<bool>>,
+}
+
+impl Read for Fenced {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let room = match self.fence.get() {
+            Some((start, end)) if self.pos < start || self.pos >= end => {
+                self.hit.set(self.pos >= end);
+                return Ok(0);
+            }
+            Some((_, end)) => usize::try_from(end - self.pos).unwrap_or(usize::MAX).min(buf.len()),
+            None => buf.len(),
+        };
+        let n = self.file.read(&mut buf[..room])?;
+        self.pos += n as u64;
+        Ok(n)
+    }
+}
+
+impl Seek for Fenced {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        self.pos = self.file.seek(to)?;
+        Ok(self.pos)
+    }
+}
+
+type TiffDecoder = Decoder<BufReader<Fenced>>;
+
+/// The fence of a [`Fenced`] file, as [`read_chunks`] sets it.
+struct Fences {
+    fence: Rc<Cell<Option<(u64, u64)>>>,
+    hit: Rc<Cell<bool>>,
+}
+
 /// A TIFF opened for reading, with its file size and dimensions.
 struct Opened {
-    dec: Decoder<BufReader<File>>,
+    dec: TiffDecoder,
     file_len: u64,
     width: usize,
     height: usize,
+    fences: Fences,
 }
 
 /// Opens `path` with tag limits sized from the file and reads its dimensions.
 fn open(path: &Path) -> Result<Opened, DemError> {
     let file = File::open(path).map_err(|e| io_error(path, e))?;
     let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+    let (fence, hit) = (Rc::new(Cell::new(None)), Rc::new(Cell::new(false)));
+    let fenced = Fenced { file, pos: 0, fence: fence.clone(), hit: hit.clone() };
     let mut dec =
-        Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
+        Decoder::new(BufReader::new(fenced)).map_err(|e| tiff_error(path, e))?.with_limits(tag_limits(file_len));
     let (w, h) = dec.dimensions().map_err(|e| tiff_error(path, e))?;
-    Ok(Opened { dec, file_len, width: w as usize, height: h as usize })
+    Ok(Opened { dec, file_len, width: w as usize, height: h as usize, fences: Fences { fence, hit } })
 }
 
 /// Read a GeoTIFF DEM.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    let Opened { mut dec, file_len, width, height } = open(path)?;
+    let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
     let n = sample_count(path, width, height)?;
     check_layout(path, &mut dec)?;
-    check_chunks_present(path, &mut dec, file_len, width, height)?;
+    check_chunks_present(path, &mut dec, file_len, (width, height), 4)?;
 
     let nodata = match dec.find_tag(Tag::GdalNodata).map_err(err)? {
         Some(tiff::decoder::ifd::Value::Ascii(s)) => parse_nodata(path, &s)?,
@@ -78,7 +127,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     };
 
     let mut heights = vec![f32::NAN; n];
-    let dec = read_chunks(path, dec, file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
+    let dec = read_chunks(path, dec, &fences, file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
         place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
     })?;
 
@@ -112,15 +161,18 @@ fn tag_limits(file_len: u64) -> Limits {
 /// last strip alike). Extra planes or stray chunks beyond the image are
 /// skipped. While decoding, the buffer limit is one chunk of at most
 /// `bytes_per_pixel`; `unit` names a pixel in the error for empty chunks.
+/// Each chunk is read only within the bytes its StripByteCounts or
+/// TileByteCounts entry declares: a chunk that needs more is an error.
 fn read_chunks(
     path: &Path,
-    dec: Decoder<BufReader<File>>,
+    dec: TiffDecoder,
+    fences: &Fences,
     file_len: u64,
     (width, height): (usize, usize),
     bytes_per_pixel: usize,
     unit: &str,
     mut take: impl FnMut(DecodingResult, [usize; 4]) -> Result<(), DemError>,
-) -> Result<Decoder<BufReader<File>>, DemError> {
+) -> Result<TiffDecoder, DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let (cw, ch) = dec.chunk_dimensions();
     let (cw, ch) = (cw as usize, ch as usize);
@@ -136,6 +188,12 @@ fn read_chunks(
         ChunkType::Strip => (1, dec.strip_count().map_err(err)?),
         ChunkType::Tile => (width.div_ceil(cw), dec.tile_count().map_err(err)?),
     };
+    let (offsets_tag, counts_tag, what) = match chunk_type {
+        ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts, "strip"),
+        ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts, "tile"),
+    };
+    let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(err)?;
+    let counts = dec.get_tag_u64_vec(counts_tag).map_err(err)?;
     for idx in 0..count {
         let (x0, y0) = match chunk_type {
             ChunkType::Strip => (0, idx as usize * ch),
@@ -144,7 +202,20 @@ fn read_chunks(
         if x0 >= width || y0 >= height {
             continue;
         }
-        let chunk = dec.read_chunk(idx).map_err(err)?;
+        let (Some(&offset), Some(&bytes)) = (offsets.get(idx as usize), counts.get(idx as usize)) else {
+            return Err(corrupt(path, format!("{what} {idx} has no offset or byte count")));
+        };
+        fences.fence.set(Some((offset, offset.saturating_add(bytes))));
+        fences.hit.set(false);
+        let chunk = dec.read_chunk(idx);
+        fences.fence.set(None);
+        let chunk = chunk.map_err(|e| match e {
+            TiffError::IoError(_) if fences.hit.get() => corrupt(
+                path,
+                format!("{what} {idx} needs more than the {bytes} bytes its {counts_tag:?} entry declares"),
+            ),
+            e => err(e),
+        })?;
         take(chunk, [x0, y0, cw.min(width - x0), ch.min(height - y0)])?;
     }
     Ok(dec)
@@ -152,7 +223,7 @@ fn read_chunks(
 
 /// Refuse, with a message a user understands, every layout that is not one
 /// band of numbers.
-fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), DemError> {
+fn check_layout(path: &Path, dec: &mut TiffDecoder) -> Result<(), DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let samples: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(err)?.unwrap_or(1);
     let photometric: u16 = dec.find_tag_unsigned(Tag::PhotometricInterpretation).map_err(err)?.unwrap_or(1);
@@ -227,10 +298,10 @@ fn check_layout(path: &Path, dec: &mut Decoder<BufReader<File>>) -> Result<(), D
 /// the file, so a truncated download says so instead of a decoder error.
 fn check_chunks_present(
     path: &Path,
-    dec: &mut Decoder<BufReader<File>>,
+    dec: &mut TiffDecoder,
     file_len: u64,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
+    decoded_bytes_per_pixel: u64,
 ) -> Result<(), DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let (offsets_tag, counts_tag, what) = match dec.get_chunk_type() {
@@ -266,26 +337,7 @@ fn check_chunks_present(
             ),
         ));
     }
-    // No TIFF compression expands data more than ~2730:1 (LZW's 12-bit codes
-    // of up to 4096 bytes; DEFLATE stops at 1032:1). A header that promises
-    // more samples than that is corrupt; refusing it here avoids allocating
-    // gigabytes for a few bytes of file.
-    let bits: u64 = dec
-        .find_tag_unsigned_vec::<u16>(Tag::BitsPerSample)
-        .map_err(err)?
-        .and_then(|v| v.first().copied())
-        .map_or(8, u64::from);
-    let raw = (width as u64).saturating_mul(height as u64).saturating_mul(bits / 8);
-    if raw > expected.saturating_mul(4096).saturating_add(1 << 20) {
-        return Err(corrupt(
-            path,
-            format!(
-                "the header promises {width} × {height} samples ({raw} bytes) but the file \
-                 holds only {expected} bytes of sample data"
-            ),
-        ));
-    }
-    Ok(())
+    check_expansion((width, height), decoded_bytes_per_pixel, expected).map_err(|e| corrupt(path, e))
 }
 
 /// GDAL_NODATA: decimal text, or "nan". Returns the value to map to NaN
@@ -477,7 +529,7 @@ fn raw_georef<R: std::io::Read + std::io::Seek>(
 }
 
 /// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
-fn georeference(path: &Path, dec: &mut Decoder<BufReader<File>>, hf: &mut Heightfield) -> Result<(), DemError> {
+fn georeference(path: &Path, dec: &mut TiffDecoder, hf: &mut Heightfield) -> Result<(), DemError> {
     let Some(RawGeoref { mut origin, mut step, crs, unit_m }) = raw_georef(path, dec)? else {
         return Ok(());
     };
@@ -536,7 +588,7 @@ const MAX_COLOUR_PIXELS: usize = 1 << 30;
 /// Reads an 8-bit gray, RGB or RGBA TIFF (chunky, in strips or tiles, any
 /// compression the DEM reader takes) with its georeference.
 pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
-    let Opened { mut dec, file_len, width, height } = open(path)?;
+    let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
     if width.checked_mul(height).is_none_or(|n| n > MAX_COLOUR_PIXELS) {
         return Err(unsupported(path, format!("{width} × {height} pixels is larger than terrachunk reads")));
@@ -571,10 +623,10 @@ pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
             format!("compression {compression}; terrachunk reads uncompressed, LZW, DEFLATE and PackBits TIFFs"),
         ));
     }
-    check_chunks_present(path, &mut dec, file_len, width, height)?;
+    check_chunks_present(path, &mut dec, file_len, (width, height), 3)?;
     let s = samples as usize;
     let mut rgb = vec![0u8; width * height * 3];
-    let dec = read_chunks(path, dec, file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
+    let dec = read_chunks(path, dec, &fences, file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
         let DecodingResult::U8(data) = chunk else {
             return Err(corrupt(path, "8-bit samples decoded to another type"));
         };

@@ -95,7 +95,7 @@ pub(super) fn load_mosaic(paths: &[PathBuf]) -> Result<Heightfield, DemError> {
     mosaic(tiles, source)
 }
 
-fn is_hgt(path: &Path) -> bool {
+pub(crate) fn is_hgt(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("hgt"))
 }
 

@@ -33,6 +33,8 @@ mod bt;
 mod exr;
 pub(crate) mod geotiff;
 mod hgt;
+
+pub(crate) use hgt::is_hgt;
 mod png;
 
 /// Options that override what a file says.
@@ -99,6 +101,38 @@ impl DemError {
 /// The most samples one grid may hold (2^31, 8 GiB of `f32`): anything larger
 /// is a corrupt header or a file this tool cannot hold in memory anyway.
 pub(crate) const MAX_SAMPLES: usize = 1 << 31;
+
+/// The most bytes a reader decodes per byte of compressed file: the
+/// memory a grid (4 bytes per sample, as `f32` heights) or a texture (3
+/// bytes per pixel) takes, against the file's length. Real DEMs and images
+/// stay far below it (the DEFLATE mosaic of California, 8401 × 4801
+/// samples: under 6 to 1; a mostly-sea SRTM tile: under 20), while a
+/// header promising gigapixels from a few megabytes of near-constant data
+/// passes it by orders of magnitude and is refused before anything is
+/// allocated. Grids and images up to [`SMALL_DECODE_BYTES`] are always
+/// read, so small synthetic files of one value still load.
+pub(crate) const MAX_EXPANSION: u64 = 1024;
+
+/// Decoded sizes that [`MAX_EXPANSION`] never refuses, bytes (64 MiB).
+pub(crate) const SMALL_DECODE_BYTES: u64 = 64 << 20;
+
+/// Refuses a file of `file_len` bytes whose header promises `width ×
+/// height` pixels of `bytes_per_pixel` bytes once decoded, beyond
+/// [`MAX_EXPANSION`]; the message says why.
+pub(crate) fn check_expansion(
+    (width, height): (usize, usize),
+    bytes_per_pixel: u64,
+    file_len: u64,
+) -> Result<(), String> {
+    let decoded = (width as u64).saturating_mul(height as u64).saturating_mul(bytes_per_pixel);
+    if decoded > SMALL_DECODE_BYTES && decoded > file_len.saturating_mul(MAX_EXPANSION) {
+        return Err(format!(
+            "the header promises {width} × {height} pixels ({decoded} bytes in memory) from a file of \
+             {file_len} bytes, more than {MAX_EXPANSION} to 1; refused before decoding"
+        ));
+    }
+    Ok(())
+}
 
 pub(crate) fn io_error(path: &Path, source: std::io::Error) -> DemError {
     DemError::Io { path: path.to_path_buf(), source }
@@ -288,6 +322,11 @@ fn by_extension(path: &Path) -> Option<Format> {
 /// Read one file, choosing the reader by its magic bytes (so a misnamed file
 /// still loads) and by its extension for formats without one (`.hgt`).
 fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
+    // A FIFO or a device would block or never end.
+    let meta = std::fs::metadata(path).map_err(|e| io_error(path, e))?;
+    if !meta.is_file() {
+        return Err(unsupported(path, "not a regular file"));
+    }
     let mut head = Vec::with_capacity(64);
     std::fs::File::open(path).and_then(|f| f.take(64).read_to_end(&mut head)).map_err(|e| io_error(path, e))?;
     let format = match sniff(&head).or_else(|| by_extension(path)) {

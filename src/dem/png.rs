@@ -10,17 +10,20 @@
 //! grayscale below 8 bits are refused rather than guessed at: the decoder
 //! would expand them to colours or rescaled levels, not heights.
 
-use std::io::Cursor;
+use std::io::{Read, Seek};
 use std::path::Path;
 
 use image::{DynamicImage, ImageError, ImageFormat, ImageReader};
 
-use super::{DemError, corrupt, file_name, io_error, sample_count, unsupported};
+use super::{DemError, check_expansion, corrupt, file_name, io_error, sample_count, unsupported};
 use crate::heightfield::Heightfield;
 
 /// Read a PNG heightmap.
 pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
+    let file = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
+    let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+    let mut bytes = Vec::with_capacity(33);
+    (&file).take(33).read_to_end(&mut bytes).map_err(|e| io_error(path, e))?;
     // IHDR is always the first chunk: width, height, bit depth, colour type.
     if bytes.len() < 33 || &bytes[12..16] != b"IHDR" {
         return Err(corrupt(path, "the PNG header (IHDR) is missing or cut short"));
@@ -48,24 +51,14 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         _ => {}
     }
     let n = sample_count(path, w, h)?;
-    // DEFLATE expands at most 1032:1: a header promising far more pixels
-    // than the file could hold is corrupt, and is refused before the
+    // The grid this becomes (f32 heights), against the file: a header
+    // promising far more than any DEM compresses to is refused before the
     // decoder allocates for it.
-    let bytes_per_pixel: u64 = match (colour, depth) {
-        (2, _) => 3,
-        (6, _) => 4,
-        (4, d) => 2 * u64::from(d / 8),
-        (_, d) => u64::from(d / 8).max(1),
-    };
-    let raw = (n as u64).saturating_mul(bytes_per_pixel);
-    if raw > (bytes.len() as u64).saturating_mul(1100).saturating_add(1 << 20) {
-        return Err(corrupt(
-            path,
-            format!("the header promises {w} × {h} pixels but the file is only {} bytes", bytes.len()),
-        ));
-    }
+    check_expansion((w, h), 4, file_len).map_err(|e| corrupt(path, e))?;
 
-    let mut reader = ImageReader::with_format(Cursor::new(&bytes), ImageFormat::Png);
+    let mut file = std::io::BufReader::new(file);
+    file.seek(std::io::SeekFrom::Start(0)).map_err(|e| io_error(path, e))?;
+    let mut reader = ImageReader::with_format(file, ImageFormat::Png);
     reader.no_limits();
     let image = reader.decode().map_err(|e| image_error(path, e))?;
 

@@ -12,6 +12,8 @@
 //! shape is the types below and whose JSON Schemas in `schemas/` are
 //! generated from them.
 
+use std::path::{Path, PathBuf};
+
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
@@ -41,8 +43,10 @@ pub struct TilesetExtras {
     pub levels: u32,
     /// δ(L) for every level, metres; each half the one before.
     pub delta_m: Vec<f64>,
-    /// Source file name(s), as given on the command line.
-    pub source: Vec<String>,
+    /// The DEM file(s) read, by name and content (never by folder, so the
+    /// same DEM gives the same bytes from anywhere): `verify` finds them
+    /// by name beside the tileset and uses one only if its content matches.
+    pub source: Vec<SourceFile>,
     /// Georeference of the source, and the local tangent plane if geographic.
     pub georef: Georef,
     /// Where the root `transform` puts the grid on the WGS 84 globe (absent
@@ -58,6 +62,68 @@ pub struct TilesetExtras {
     /// the chunks are untextured).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub texture: Option<TextureExtras>,
+}
+
+/// One DEM file a tileset was built from.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SourceFile {
+    /// The file's name, without its folder.
+    pub name: String,
+    /// Its length, bytes.
+    pub bytes: u64,
+    /// SHA-256 of its content, 64 lowercase hexadecimal digits.
+    pub sha256: String,
+}
+
+impl SourceFile {
+    /// Names, lengths and hashes of the files `inputs` name, as the
+    /// loader reads them: a folder stands for the `.hgt` tiles in it, in
+    /// name order. Errors name the file that could not be read.
+    pub fn of_inputs(inputs: &[PathBuf]) -> Result<Vec<SourceFile>, (PathBuf, std::io::Error)> {
+        let mut files = Vec::new();
+        for input in inputs {
+            if input.is_dir() {
+                let mut tiles = Vec::new();
+                for entry in std::fs::read_dir(input).map_err(|e| (input.clone(), e))? {
+                    let p = entry.map_err(|e| (input.clone(), e))?.path();
+                    if crate::dem::is_hgt(&p) && p.is_file() {
+                        tiles.push(p);
+                    }
+                }
+                tiles.sort();
+                files.extend(tiles);
+            } else {
+                files.push(input.clone());
+            }
+        }
+        files.iter().map(|p| SourceFile::of(p).map_err(|e| (p.clone(), e))).collect()
+    }
+
+    /// The name, length and hash of the file at `path`, read in pieces.
+    pub fn of(path: &Path) -> std::io::Result<SourceFile> {
+        let (bytes, sha256) = sha256_of(std::fs::File::open(path)?)?;
+        let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        Ok(SourceFile { name, bytes, sha256 })
+    }
+}
+
+/// The length and SHA-256 (lowercase hex) of everything `r` yields, read
+/// in pieces: memory does not grow with the file.
+pub fn sha256_of(mut r: impl std::io::Read) -> std::io::Result<(u64, String)> {
+    use sha2::Digest;
+    let mut hasher = sha2::Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut total = 0u64;
+    loop {
+        let n = r.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+        total += n as u64;
+    }
+    Ok((total, format!("{:x}", hasher.finalize())))
 }
 
 /// Grid size in samples.

@@ -9,7 +9,7 @@
 //! shade is Lambert's `n·l` with a little ambient light, scaled so flat
 //! ground shows the plain tint.
 
-use std::io::{Cursor, Read};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
@@ -69,8 +69,12 @@ fn image_error(path: &Path, what: impl Into<String>) -> TextureError {
 /// stretched so its outer edges meet the DEM's outer cell edges.
 pub fn load_image(path: &Path, hf: &Heightfield) -> Result<ColourSource, TextureError> {
     let io = |source| TextureError::Io { path: path.to_path_buf(), source };
-    let mut head = Vec::with_capacity(16);
-    std::fs::File::open(path).and_then(|f| f.take(16).read_to_end(&mut head)).map_err(io)?;
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if !meta.is_file() {
+        return Err(image_error(path, "not a regular file"));
+    }
+    let mut head = Vec::with_capacity(32);
+    std::fs::File::open(path).and_then(|f| f.take(32).read_to_end(&mut head)).map_err(io)?;
     let (width, height, rgb, georef) = if head.starts_with(b"II*\0")
         || head.starts_with(b"MM\0*")
         || head.starts_with(b"II+\0")
@@ -79,12 +83,22 @@ pub fn load_image(path: &Path, hf: &Heightfield) -> Result<ColourSource, Texture
         let t = load_rgb8(path).map_err(TextureError::Tiff)?;
         (t.width, t.height, t.rgb, t.georef)
     } else if head.starts_with(b"\x89PNG\r\n\x1a\n") || head.starts_with(&[0xff, 0xd8, 0xff]) {
-        let bytes = std::fs::read(path).map_err(io)?;
-        let img = image::ImageReader::new(Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(io)?
-            .decode()
-            .map_err(|e| image_error(path, format!("cannot decode: {e}")))?;
+        // PNG's IHDR: bit depth at byte 24. 16-bit colour would be cut to
+        // 8 bits without a word; the README promises it is refused.
+        if head.starts_with(b"\x89PNG") && head.get(24) == Some(&16) {
+            return Err(image_error(path, "16-bit PNG; a texture needs 8 bits per channel (convert it first)"));
+        }
+        let open = || std::fs::File::open(path).map(std::io::BufReader::new).map_err(io);
+        let file_len = std::fs::metadata(path).map_err(io)?.len();
+        let cannot = |e: image::ImageError| image_error(path, format!("cannot decode: {e}"));
+        let (w, h) =
+            image::ImageReader::new(open()?).with_guessed_format().map_err(io)?.into_dimensions().map_err(cannot)?;
+        let (w, h) = (w as usize, h as usize);
+        if w.checked_mul(h).is_none_or(|n| n > MAX_SOURCE_PIXELS) {
+            return Err(image_error(path, format!("{w} × {h} pixels is larger than terrachunk reads")));
+        }
+        crate::dem::check_expansion((w, h), 3, file_len).map_err(|e| image_error(path, e))?;
+        let img = image::ImageReader::new(open()?).with_guessed_format().map_err(io)?.decode().map_err(cannot)?;
         let img = img.to_rgb8();
         (img.width() as usize, img.height() as usize, img.into_raw(), None)
     } else {
