@@ -19,6 +19,7 @@ use serde_json::Value;
 
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
+use crate::mesh::quality::{self, ShapeSummary};
 use crate::morph::barycentric;
 use crate::verify::read_chunk;
 
@@ -147,6 +148,13 @@ pub fn scan(hf: &Heightfield, verts: &[MeshVertex], tris: &[[u32; 3]], window: W
     sum
 }
 
+/// The shapes of a mesh in grid units (column, row) over cells of
+/// `spacing_m`, in plan metres.
+pub fn grid_shape(verts: &[MeshVertex], tris: &[[u32; 3]], spacing_m: [f64; 2]) -> ShapeSummary {
+    let plan: Vec<[f64; 2]> = verts.iter().map(|v| [v.x * spacing_m[0], v.z * spacing_m[1]]).collect();
+    quality::summarize(&plan, tris)
+}
+
 /// Errors of one mesh over the whole grid.
 pub fn mesh_errors(hf: &Heightfield, verts: &[MeshVertex], tris: &[[u32; 3]]) -> ErrorStats {
     let all = Window::all(hf);
@@ -165,6 +173,8 @@ pub struct LeafMeasure {
     /// Their errors against the DEM (each sample's RMS share counted once:
     /// a border sample belongs to the chunk east or south of it).
     pub errors: ErrorStats,
+    /// Their triangles' shapes in plan, as written.
+    pub shape: ShapeSummary,
 }
 
 /// Reads every leaf chunk (a tile without children in `tileset.json`) of the
@@ -187,7 +197,7 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
     let mut uris = Vec::new();
     collect_leaves(&ts["root"], &mut uris);
     let (last_x, last_z) = (hf.width as u32 - 1, hf.height as u32 - 1);
-    let parts: Vec<Result<(ErrorSum, usize, usize), BenchError>> = uris
+    let parts: Vec<Result<(ErrorSum, ShapeSummary, usize), BenchError>> = uris
         .par_iter()
         .map(|uri| {
             let c = read_chunk(&dir.join(uri))?;
@@ -207,16 +217,18 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
                 ..window
             };
             let sum = scan(hf, &verts, &c.surface.triangles, window, owned);
-            Ok((sum, c.surface.triangles.len(), verts.len()))
+            let plan: Vec<[f64; 2]> = c.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
+            Ok((sum, quality::summarize(&plan, &c.surface.triangles), verts.len()))
         })
         .collect();
     let mut m = LeafMeasure { leaves: uris.len(), ..LeafMeasure::default() };
     let mut sum = ErrorSum::default();
     for p in parts {
-        let (s, t, v) = p?;
+        let (s, shape, v) = p?;
         sum = sum.merge(s);
-        m.leaf_triangles += t;
+        m.leaf_triangles += shape.triangles;
         m.leaf_vertices += v;
+        m.shape = m.shape.merge(shape);
     }
     m.errors = sum.stats();
     Ok(m)

@@ -38,6 +38,7 @@ use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use crate::mesh::quality::ShapeSummary;
 use crate::mesh::{ChunkMesh, MeshError};
 use crate::verify::VerifyError;
 use measure::ErrorStats;
@@ -475,8 +476,15 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
                 let last = reports.last().expect("at least one run");
                 let seconds = median_stages(&reports);
                 eprintln!(
-                    "terrachunk {} at {e} m on {} threads: {} leaf triangles, measured max error {:.4} m, median {:.3} s",
-                    p.label, last.threads, leaves.leaf_triangles, leaves.errors.max_error_m, seconds[6]
+                    "terrachunk {} at {e} m on {} threads: {} leaf triangles ({:.4} % slivers, {} needles, smallest angle {:.2e}°), measured max error {:.4} m, median {:.3} s",
+                    p.label,
+                    last.threads,
+                    leaves.leaf_triangles,
+                    100.0 * leaves.shape.sliver_share(),
+                    leaves.shape.needles,
+                    leaves.shape.min_angle_deg,
+                    leaves.errors.max_error_m,
+                    seconds[6]
                 );
                 rows.push(Row {
                     tool: "terrachunk".into(),
@@ -495,7 +503,8 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
                     peak_rss_bytes: reports.iter().filter_map(|r| r.peak_rss_bytes).max(),
                     threads: last.threads,
                     ..base.clone()
-                });
+                }
+                .with_shape(&leaves.shape));
             }
             if o.single_tin {
                 let s = single_tin_timed(&p.hf, e, o.base.warmup, o.base.runs)?;
@@ -534,6 +543,8 @@ pub struct SingleTin {
     pub seconds: f64,
     /// Measured against the grid.
     pub errors: ErrorStats,
+    /// Its triangles' shapes in plan.
+    pub shape: ShapeSummary,
 }
 
 /// One unconstrained greedy TIN over the whole grid (no chunks, no dividing
@@ -564,6 +575,7 @@ fn single_tin_timed(hf: &Heightfield, max_error_m: f64, warmup: usize, runs: usi
         vertices: mesh.vertices.len(),
         seconds: median(secs),
         errors: measure::mesh_errors(hf, &mesh.vertices, &tris),
+        shape: measure::grid_shape(&mesh.vertices, &tris, hf.spacing_m),
     })
 }
 
@@ -586,6 +598,7 @@ fn single_tin_row(base: &Row, e: f64, s: &SingleTin) -> Row {
         threads: 1,
         ..base.clone()
     }
+    .with_shape(&s.shape)
 }
 
 /// Redraws `dir/bench.png` and `dir/bench.svg` from `dir/bench.csv`; a
@@ -624,12 +637,19 @@ pub struct MeshMeasure {
     /// Errors.
     #[serde(flatten)]
     pub errors: ErrorStats,
+    /// Its triangles' shapes in plan (metres, by the grid's spacing).
+    pub shape: ShapeSummary,
 }
 
 /// Measures an OBJ mesh (grid units, [`measure::read_obj`]) against `hf`.
 pub fn measure_mesh(hf: &Heightfield, obj: &Path) -> Result<MeshMeasure, BenchError> {
     let (verts, tris) = measure::read_obj(obj)?;
-    Ok(MeshMeasure { triangles: tris.len(), vertices: verts.len(), errors: measure::mesh_errors(hf, &verts, &tris) })
+    Ok(MeshMeasure {
+        triangles: tris.len(),
+        vertices: verts.len(),
+        errors: measure::mesh_errors(hf, &verts, &tris),
+        shape: measure::grid_shape(&verts, &tris, hf.spacing_m),
+    })
 }
 
 /// Adds the rows of other tools to `out/bench.csv` and redraws the plot.
@@ -691,7 +711,8 @@ pub fn import_peers(
             runs,
             threads: 1,
             ..Row::default()
-        });
+        }
+        .with_shape(&m.shape));
     }
     std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
     table::write(&out.join("bench.csv"), &rows, true)?;

@@ -11,7 +11,7 @@ use std::path::Path;
 use super::BenchError;
 
 /// The header, in column order (README.md, "Benchmarks", says what each is).
-pub const COLUMNS: [&str; 26] = [
+pub const COLUMNS: [&str; 29] = [
     "tool",
     "dem",
     "width",
@@ -38,6 +38,9 @@ pub const COLUMNS: [&str; 26] = [
     "runs",
     "peak_rss_bytes",
     "threads",
+    "sliver_share",
+    "needles",
+    "min_angle_deg",
 ];
 
 /// One row of `bench.csv`.
@@ -84,6 +87,13 @@ pub struct Row {
     pub peak_rss_bytes: Option<u64>,
     /// Worker threads.
     pub threads: usize,
+    /// Share of the finest surface's triangles with aspect over 100
+    /// (longest edge ÷ its height, in plan: `mesh::quality`).
+    pub sliver_share: Option<f64>,
+    /// Finest-surface triangles with aspect over 1 000.
+    pub needles: Option<usize>,
+    /// Smallest angle of any finest-surface triangle, degrees.
+    pub min_angle_deg: Option<f64>,
 }
 
 fn opt<T: ToString>(v: &Option<T>) -> String {
@@ -117,6 +127,11 @@ impl Row {
         ];
         f.extend(self.seconds.iter().map(|s| s.map(|s| format!("{s:.6}")).unwrap_or_default()));
         f.extend([self.runs.to_string(), opt(&self.peak_rss_bytes), self.threads.to_string()]);
+        f.extend([
+            self.sliver_share.map(|s| format!("{s:.6}")).unwrap_or_default(),
+            opt(&self.needles),
+            self.min_angle_deg.map(|a| format!("{a:.6}")).unwrap_or_default(),
+        ]);
         f
     }
 
@@ -153,7 +168,15 @@ impl Row {
             runs: f[23].parse().ok()?,
             peak_rss_bytes: o(f[24])?,
             threads: f[25].parse().ok()?,
+            sliver_share: o(f[26])?,
+            needles: o(f[27])?,
+            min_angle_deg: o(f[28])?,
         })
+    }
+
+    /// The shape columns from a summary of the finest surface.
+    pub fn with_shape(self, s: &crate::mesh::quality::ShapeSummary) -> Row {
+        Row { sliver_share: Some(s.sliver_share()), needles: Some(s.needles), min_angle_deg: Some(s.min_angle_deg), ..self }
     }
 
     /// Median total seconds, the time the plot shows.
