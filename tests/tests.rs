@@ -9,5 +9,6 @@ mod hard_cases;
 mod pipeline;
 mod placement;
 mod properties;
+mod rtin;
 mod texture;
 mod viewer;

@@ -4,6 +4,7 @@
 //! [`crate::verify`].
 
 pub mod decimate;
+pub mod rtin;
 pub mod skirt;
 pub mod tin;
 
