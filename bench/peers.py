@@ -11,7 +11,12 @@ only on the grid size and is reused across tiles, as its docs advise; its
 time is printed apart); pydelatin the `Delatin(...)` call, which meshes.
 Both get the float32 heights exactly as terrachunk reads them.
 
-usage: python bench/peers.py GRID.npy --errors 1,5 --runs 3 --out DIR
+Each mesh's triangle shapes, in plan and in metres (`--spacing`), go to
+DIR/quality.csv with the columns terrachunk's bench gives its own rows
+(src/mesh/quality.rs): triangles, the share with aspect (longest edge ÷ the
+height on it) over 100, how many over 10³, and the smallest angle.
+
+usage: python bench/peers.py GRID.npy --errors 1,5 --runs 3 --out DIR [--spacing SX,SZ]
 """
 
 import argparse
@@ -44,6 +49,34 @@ def write_obj(path, xs, hs, zs, tris):
         np.savetxt(f, np.asarray(tris, dtype=np.int64) + 1, fmt="f %d %d %d")
 
 
+SLIVER_ASPECT = 100.0
+NEEDLE_ASPECT = 1000.0
+
+
+def quality(xs, zs, tris, spacing):
+    """(triangles, share with aspect > 100, count > 10³, smallest angle in
+    degrees) of a mesh whose vertices are at grid (column, row), measured in
+    metres. Aspect = longest edge² ÷ twice the area; no area: infinite."""
+    p = np.column_stack([np.asarray(xs, np.float64) * spacing[0], np.asarray(zs, np.float64) * spacing[1]])
+    t = np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+    if len(t) == 0:
+        return 0, 0.0, 0, 60.0
+    a, b, c = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
+    ab, bc, ca = b - a, c - b, a - c
+    twice_area = np.abs(ab[:, 0] * (-ca[:, 1]) - ab[:, 1] * (-ca[:, 0]))
+    sq = np.column_stack([(e * e).sum(axis=1) for e in (ab, bc, ca)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        aspect = np.where(twice_area > 0, sq.max(axis=1) / twice_area, np.inf)
+
+    def angle(u, v):
+        cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+        return np.degrees(np.arctan2(cross, (u * v).sum(axis=1)))
+
+    smallest = np.minimum(np.minimum(angle(ab, -ca), angle(bc, -ab)), angle(ca, -bc))
+    smallest = np.where(twice_area > 0, smallest, 0.0)
+    return len(t), float((aspect > SLIVER_ASPECT).mean()), int((aspect > NEEDLE_ASPECT).sum()), float(smallest.min())
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("grid", type=Path)
@@ -51,7 +84,9 @@ def main():
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--warmup", type=int, default=1)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--spacing", default="1,1", help="cell size in metres, east-west,north-south")
     a = ap.parse_args()
+    spacing = [float(s) for s in a.spacing.split(",")]
     errors = [float(e) for e in a.errors.split(",")]
     grid = np.ascontiguousarray(np.load(a.grid), dtype=np.float32)
     rows, cols = grid.shape
@@ -62,6 +97,12 @@ def main():
         )
     a.out.mkdir(parents=True, exist_ok=True)
     manifest = ["tool,max_error_m,seconds,runs,mesh"]
+    shapes = ["tool,max_error_m,triangles,sliver_share,over_1000,min_angle_deg"]
+
+    def shape_row(tool, e, xs, zs, tris):
+        n, share, needles, smallest = quality(xs, zs, tris, spacing)
+        shapes.append(f"{tool},{e:g},{n},{share:.6g},{needles},{smallest:.6g}")
+        print(f"           aspect > 100: {100 * share:.4f} %, > 10³: {needles}, smallest angle {smallest:.4g}°")
 
     square = rows == cols and ((rows - 1) & (rows - 2)) == 0 and rows >= 3
     if square:
@@ -85,6 +126,7 @@ def main():
             write_obj(a.out / name, v[:, 0], grid[v[:, 1], v[:, 0]].astype(np.float64), v[:, 1], t)
             manifest.append(f"pymartini,{e:g},{secs:.6f},{a.runs},{name}")
             print(f"pymartini  {e:>6g} m: {len(t):>8} triangles, {secs:.4f} s")
+            shape_row("pymartini", e, v[:, 0], v[:, 1], t)
 
         secs, d = timed(lambda: Delatin(grid, max_error=e), a.warmup, a.runs)
         p = d.vertices
@@ -103,8 +145,10 @@ def main():
         write_obj(a.out / name, p[:, 0], p[:, 2].astype(np.float64), row, t)
         manifest.append(f"pydelatin,{e:g},{secs:.6f},{a.runs},{name}")
         print(f"pydelatin  {e:>6g} m: {len(t):>8} triangles, {secs:.4f} s (its own max error {d.error:.4f})")
+        shape_row("pydelatin", e, p[:, 0], row, t)
 
     (a.out / "manifest.csv").write_text("\n".join(manifest) + "\n")
+    (a.out / "quality.csv").write_text("\n".join(shapes) + "\n")
 
 
 if __name__ == "__main__":

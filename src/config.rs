@@ -136,6 +136,22 @@ pub struct Config {
     /// as earlier versions wrote them (worst 1.14°)
     /// ([`Config::normal_encoding`]). Unused with `compress = "none"`.
     pub normal_bits: Option<u32>,
+    /// Which mesher makes each chunk's surface: `tin` (greedy insertion,
+    /// `mesh::decimate`) or `rtin` (the right-triangle bintree,
+    /// `mesh::rtin`: right-isosceles triangles only, chunks on squares of
+    /// 2^k cells). Default `tin`.
+    pub mesher: Mesher,
+}
+
+/// Which mesher makes the chunks ([`Config::mesher`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mesher {
+    /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
+    #[default]
+    Tin,
+    /// Right-triangle bintree with true errors (`mesh::rtin`).
+    Rtin,
 }
 
 /// The default [`Config::max_chunk_vertices`]: 65 535, what u16 indices
@@ -293,6 +309,7 @@ impl Default for Config {
             normal_map: false,
             compress: Compress::None,
             normal_bits: None,
+            mesher: Mesher::Tin,
         }
     }
 }

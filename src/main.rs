@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
-use terrachunk::config::{Compress, Config, TextureFormat, Thin};
+use terrachunk::config::{Compress, Config, Mesher, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify_with_progress;
@@ -85,6 +85,10 @@ enum Command {
         /// [default: leaves].
         #[arg(long, value_enum)]
         thin: Option<ThinArg>,
+        /// Which mesher makes the chunks: `tin` (greedy insertion) or
+        /// `rtin` (right-triangle bintree, no slivers) [default: tin].
+        #[arg(long, value_enum)]
+        mesher: Option<MesherArg>,
         /// Build every chunk to the deepest level, even below one that already
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
@@ -198,6 +202,12 @@ enum CompressArg {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum MesherArg {
+    Tin,
+    Rtin,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum ThinArg {
     None,
     Leaves,
@@ -251,6 +261,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             root_cells,
             max_chunk_vertices,
             thin,
+            mesher,
             complete_tree,
             compress,
             force,
@@ -308,6 +319,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     ThinArg::None => Thin::None,
                     ThinArg::Leaves => Thin::Leaves,
                     ThinArg::All => Thin::All,
+                };
+            }
+            if let Some(m) = mesher {
+                cfg.mesher = match m {
+                    MesherArg::Tin => Mesher::Tin,
+                    MesherArg::Rtin => Mesher::Rtin,
                 };
             }
             cfg.complete_tree |= complete_tree;

@@ -15,11 +15,12 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::chunk::{Chunk, Part};
-use crate::config::{Config, ConfigError, dense_leaf_cells};
+use crate::config::{Config, ConfigError, Mesher, dense_leaf_cells};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{CUT_SHARE, ChunkSpec, DividingLines, Grid, U16_INDEXED, build_chunk};
+use crate::mesh::rtin::{self, Rtin};
 use crate::mesh::skirt::build_skirt;
 use crate::mesh::{ChunkMesh, MeshError, dem_normal};
 use crate::output::compress::{Quantization, QuantizeError};
@@ -383,7 +384,10 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     let t = Instant::now();
     let attempts = Instant::now();
     loop {
-        let tree = estimate.tree(leaf_cells, refine);
+        let tree = match opts.config.mesher {
+            Mesher::Tin => estimate.tree(leaf_cells, refine),
+            Mesher::Rtin => rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine),
+        };
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         let discarded = attempts.elapsed();
@@ -453,6 +457,8 @@ fn build_levels(
     let normals = (cfg.normal_map && colour.is_some()).then(|| NormalSource::new(grid, hf.spacing_m));
     let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
     let quantization = cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m)).transpose()?;
+    let t = Instant::now();
+    let rtin = (cfg.mesher == Mesher::Rtin).then(|| Rtin::new(grid, tree, quantization.as_ref().map(|q| q.step_y_m)));
     let run = Run {
         hf,
         grid,
@@ -469,6 +475,7 @@ fn build_levels(
         },
         texturer: texturer.as_ref(),
         lone_parts,
+        rtin: rtin.as_ref(),
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
@@ -480,6 +487,7 @@ fn build_levels(
         failed: std::sync::atomic::AtomicBool::new(false),
         bar: progress::bar(opts.progress, planned as u64, "chunks at most"),
     };
+    Timers::add(&run.timers.mesh, t);
     let chunks = run.all_chunks();
     run.bar.finish_and_clear();
     let mut chunks = chunks?;
@@ -592,6 +600,8 @@ struct Run<'a> {
     texturer: Option<&'a Texturer<'a>>,
     /// The lone chunks are filled by parts ([`lone_parts`]).
     lone_parts: bool,
+    /// The bintree's error field, where it meshes the chunks.
+    rtin: Option<&'a Rtin>,
     timers: Timers,
     bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -772,7 +782,10 @@ impl Run<'_> {
                 height_step: self.ctx.quantization.as_ref().map(|q| q.step_y_m),
                 thin: self.opts.config.thin.level(!tree.splits(level)),
             };
-            let mesh = build_chunk(grid, &spec)?;
+            let mesh = match self.rtin {
+                Some(r) => r.build_chunk(grid, tree, key, spec.max_vertices, spec.cancel)?,
+                None => build_chunk(grid, &spec)?,
+            };
             if mesh.max_error_m > spec.delta_m {
                 return Err(BuildError::MissedDelta {
                     level: key.level,

@@ -11,6 +11,7 @@ mod loader_limits;
 mod pipeline;
 mod placement;
 mod properties;
+mod rtin;
 mod texture;
 mod verify_trust;
 mod viewer;

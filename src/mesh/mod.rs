@@ -5,6 +5,7 @@
 
 pub mod decimate;
 pub mod quality;
+pub mod rtin;
 pub mod skirt;
 pub mod tin;
 

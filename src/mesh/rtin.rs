@@ -1,0 +1,723 @@
+//! Right-triangle bintree (RTIN) mesher: the binary triangle tree of the
+//! seeds' own chunker (Lindstrom et al. 1996, as in `chunklod-demo-readme`;
+//! the 4-8 mesh that martini also uses), with true errors.
+//!
+//! Every triangle is right-isosceles: a square of `c` cells is cut by one
+//! diagonal (main where its column plus row index, in squares of `c`, is
+//! even, else the other one), each half by the square's centre into four
+//! triangles whose hypotenuses are the square's sides, and each of those by
+//! its side's midpoint into two halves of the squares of `c/2`. So the
+//! pattern depends only on a triangle's place, not on any chunk or grid,
+//! and chunks whose footprints are squares of 2^k cells aligned to 2^k
+//! ([`plan`]) are unions of its triangles.
+//!
+//! One bottom-up pass ([`Rtin::new`]) gives every vertex `m` the largest
+//! *true* error of the triangles split at `m`: the maximum over every valid
+//! sample a triangle covers of |plane − sample| (plus what its corners'
+//! heights round by in quantized output), and the same of the vertices its
+//! children are split at. A triangle is split where that exceeds δ, so a
+//! mesh at δ keeps every sample within δ, the two triangles that share a
+//! hypotenuse split together (no crack), and a mesh at a smaller δ refines
+//! one at a larger δ (nesting). A chunk of level L is the mesh at δ(L) of
+//! the triangles inside its square: same-level neighbours draw one border,
+//! and each child vertex's morph target is its parent's surface exactly
+//! (the midpoint of the parent triangle's edge it splits, interpolated).
+//!
+//! The grid need not be 2^k + 1 samples: a triangle reaching past the
+//! grid's last column or row is always split, until each piece lies inside
+//! the grid or outside it (pieces outside are dropped), so the grid's edge is
+//! made of triangle edges. Nodata is handled as the greedy TIN does: errors
+//! count valid samples only, a vertex on nodata takes the void fill, and a
+//! triangle that covers no valid sample is not written.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use rayon::prelude::*;
+
+use super::decimate::Grid;
+use super::{ChunkMesh, MeshError, MeshVertex};
+use crate::quadtree::{ChunkKey, ChunkTree, Span};
+
+/// Plans the chunk tree the bintree needs: every chunk of a level is a
+/// square of 2^k cells aligned to 2^k (clipped to the grid), and each level
+/// halves the square. `leaf_cells` (≥ 2) bounds the leaves' side, which is
+/// the largest power of two within it; `root_cells`, where set, the top
+/// squares' side in the same way (otherwise one square covers the grid).
+/// `refine_levels` are added at the bottom with the leaves' footprint, each
+/// halving δ, as in [`ChunkTree::plan`].
+pub fn plan(
+    width: usize,
+    height: usize,
+    max_error_m: f64,
+    root_cells: Option<u32>,
+    leaf_cells: u32,
+    refine_levels: u32,
+) -> ChunkTree {
+    let (wc, hc) = ((width - 1) as u32, (height - 1) as u32);
+    let mut top = wc.max(hc).max(1).next_power_of_two();
+    if let Some(r) = root_cells {
+        top = top.min(floor_pow2(r.max(2)));
+    }
+    let leaf = floor_pow2(leaf_cells.max(2)).min(top);
+    let spans = |cells: u32, side: u32| -> Vec<Span> {
+        (0..cells.div_ceil(side)).map(|k| (k * side, ((k + 1) * side).min(cells))).collect()
+    };
+    let (mut xs, mut zs) = (Vec::new(), Vec::new());
+    let mut side = top;
+    loop {
+        xs.push(spans(wc, side));
+        zs.push(spans(hc, side));
+        if side <= leaf {
+            break;
+        }
+        side /= 2;
+    }
+    for _ in 0..refine_levels.min(crate::quadtree::MAX_REFINE_LEVELS) {
+        xs.push(xs.last().expect("one level").clone());
+        zs.push(zs.last().expect("one level").clone());
+    }
+    let depth = xs.len() - 1;
+    let delta_m = (0..=depth).map(|l| max_error_m * f64::from(1u32 << (depth - l).min(31))).collect();
+    ChunkTree { xs, zs, delta_m }
+}
+
+fn floor_pow2(n: u32) -> u32 {
+    1 << (31 - n.leading_zeros())
+}
+
+/// The side, in cells, of the squares a level of a [`plan`]ned tree cuts
+/// the grid into (its spans are those squares clipped to the grid).
+pub fn square_side(tree: &ChunkTree, level: u32) -> u32 {
+    let [wx, wz] = tree.widest_cells(level);
+    wx.max(wz).max(1).next_power_of_two()
+}
+
+/// A vertex's place on the grid: column, row.
+type P = (u32, u32);
+
+/// A bintree triangle: hypotenuse `a`–`b`, right angle at `r`.
+#[derive(Clone, Copy, Debug)]
+struct Tri {
+    a: P,
+    b: P,
+    r: P,
+}
+
+impl Tri {
+    /// Where it is split (its hypotenuse's midpoint), if that is a sample.
+    #[inline]
+    fn midpoint(&self) -> Option<P> {
+        let (sx, sz) = (self.a.0 + self.b.0, self.a.1 + self.b.1);
+        (sx % 2 == 0 && sz % 2 == 0).then_some((sx / 2, sz / 2))
+    }
+
+    /// The two halves it splits into at `m`.
+    #[inline]
+    fn children(&self, m: P) -> [Tri; 2] {
+        [Tri { a: self.r, b: self.a, r: m }, Tri { a: self.b, b: self.r, r: m }]
+    }
+
+    /// Squared hypotenuse, in cells².
+    #[inline]
+    fn hyp2(&self) -> u64 {
+        let dx = u64::from(self.a.0.abs_diff(self.b.0));
+        let dz = u64::from(self.a.1.abs_diff(self.b.1));
+        dx * dx + dz * dz
+    }
+
+    /// Bounding box: (x0, x1, z0, z1).
+    #[inline]
+    fn bbox(&self) -> (u32, u32, u32, u32) {
+        let (a, b, r) = (self.a, self.b, self.r);
+        (a.0.min(b.0).min(r.0), a.0.max(b.0).max(r.0), a.1.min(b.1).min(r.1), a.1.max(b.1).max(r.1))
+    }
+}
+
+/// Where a triangle lies against the grid `[0, xmax] × [0, zmax]`.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Place {
+    Inside,
+    /// Its box reaches past the grid's last column or row from inside:
+    /// always split. (A box is a superset, so a few triangles that lie
+    /// wholly outside are split too; that costs nothing the output keeps.)
+    Straddles,
+    Outside,
+}
+
+/// The error field and the tree's levels: what every chunk of one build
+/// is cut from.
+pub struct Rtin {
+    width: usize,
+    height: usize,
+    /// Per sample (row-major): the largest true error of the triangles split
+    /// there and of everything below them, in metres, rounded up to f32.
+    errors: Vec<f32>,
+    /// Per level: the side of its squares, in cells, and the δ it is meshed to.
+    sides: Vec<u32>,
+    deltas: Vec<f64>,
+}
+
+impl Rtin {
+    /// The bottom-up pass over the whole grid, for the levels of `tree`
+    /// (planned by [`plan`]). `height_step`: quantized output rounds every
+    /// height to multiples of it, which each triangle's error then includes.
+    pub fn new(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>) -> Self {
+        let levels = tree.depth() + 1;
+        let sides: Vec<u32> = (0..levels).map(|l| square_side(tree, l)).collect();
+        let field = Field {
+            grid,
+            xmax: (grid.width - 1) as u32,
+            zmax: (grid.height - 1) as u32,
+            step: height_step.unwrap_or(0.0),
+            errors: (0..grid.width * grid.height).map(|_| AtomicU32::new(0)).collect(),
+        };
+        let mut c = 2;
+        while c <= sides[0] {
+            field.level(c, false);
+            field.level(c, true);
+            c *= 2;
+        }
+        let errors = field.errors.into_iter().map(|e| f32::from_bits(e.into_inner())).collect();
+        Rtin { width: grid.width, height: grid.height, errors, sides, deltas: tree.delta_m.clone() }
+    }
+
+    /// The error stored at a vertex (0 for a leaf vertex, ∞ where a
+    /// triangle split there reaches past the grid).
+    pub fn error_at(&self, x: u32, z: u32) -> f32 {
+        self.errors[z as usize * self.width + x as usize]
+    }
+
+    /// Meshes chunk `key` of `tree` at its level's δ: the bintree's
+    /// triangles inside its square, with each vertex's parent-surface height.
+    /// `max_vertices`: more makes [`MeshError::TooDense`]; `cancel`: set
+    /// when another chunk failed.
+    pub fn build_chunk(
+        &self,
+        grid: &Grid,
+        tree: &ChunkTree,
+        key: ChunkKey,
+        max_vertices: usize,
+        cancel: Option<&AtomicBool>,
+    ) -> Result<ChunkMesh, MeshError> {
+        if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+            return Err(MeshError::Cancelled);
+        }
+        let level = key.level as usize;
+        let footprint = tree.footprint(key);
+        let delta_m = self.deltas[level];
+        let side = self.sides[level];
+        let ((x0, _), (z0, _)) = footprint;
+        // Descend from the parent's square (its corners are parent vertices,
+        // so their parent-surface height is their own), or the chunk's own.
+        let (from, parent) = match level {
+            0 => ((x0, z0, side), None),
+            _ => {
+                let ps = self.sides[level - 1];
+                (((x0 / ps) * ps, (z0 / ps) * ps, ps), Some((ps, self.deltas[level - 1])))
+            }
+        };
+        let mut m = Mesher {
+            rtin: self,
+            grid,
+            side,
+            square: (x0, z0),
+            delta_m,
+            parent,
+            index: HashMap::new(),
+            vertices: Vec::new(),
+            triangles: Vec::new(),
+        };
+        for (t, ph) in square_triangles(from.0, from.1, from.2) {
+            let hs = ph.map(|p| vertex_height(grid, p));
+            m.descend(t, [hs[0], hs[1], hs[2]]);
+        }
+        if m.vertices.len() > max_vertices {
+            return Err(MeshError::TooDense { level: key.level, x: key.x, y: key.y, delta_m, limit: max_vertices });
+        }
+        let Mesher { vertices, triangles, .. } = m;
+        let mut kept = Vec::with_capacity(triangles.len());
+        let mut max_error_m: f64 = 0.0;
+        for t in &triangles {
+            let corners = t.map(|v| vertices[v as usize]);
+            let scan = scan_triangle(grid, &corners);
+            kept.push(scan.valid);
+            max_error_m = max_error_m.max(scan.error);
+        }
+        let relief_m = footprint_relief(grid, footprint);
+        let n = triangles.len();
+        Ok(ChunkMesh {
+            key,
+            footprint,
+            delta_m,
+            vertices,
+            triangles,
+            kept,
+            max_error_m,
+            max_error_near_cuts_m: 0.0,
+            relief_m,
+            scans: vec![None; n],
+            locator_index: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// Whether the mesh at `delta` splits triangle `t` (whose box lies
+    /// inside or straddles the grid).
+    #[inline]
+    fn splits(&self, t: &Tri, place: Place, delta: f64) -> Option<P> {
+        let m = t.midpoint()?;
+        (place == Place::Straddles || f64::from(self.error_at(m.0, m.1)) > delta).then_some(m)
+    }
+
+    fn place(&self, t: &Tri) -> Place {
+        place(t, (self.width - 1) as u32, (self.height - 1) as u32)
+    }
+}
+
+fn place(t: &Tri, xmax: u32, zmax: u32) -> Place {
+    let (x0, x1, z0, z1) = t.bbox();
+    if x0 >= xmax || z0 >= zmax {
+        Place::Outside
+    } else if x1 > xmax || z1 > zmax {
+        Place::Straddles
+    } else {
+        Place::Inside
+    }
+}
+
+/// The two triangles of the square of side `c` at (x0, z0), with their
+/// corners in `[a, b, r]` order.
+fn square_triangles(x0: u32, z0: u32, c: u32) -> [(Tri, [P; 3]); 2] {
+    let (p00, p10, p01, p11) = ((x0, z0), (x0 + c, z0), (x0, z0 + c), (x0 + c, z0 + c));
+    let tris = if ((x0 / c) + (z0 / c)) % 2 == 0 {
+        [Tri { a: p00, b: p11, r: p01 }, Tri { a: p11, b: p00, r: p10 }]
+    } else {
+        [Tri { a: p10, b: p01, r: p00 }, Tri { a: p01, b: p10, r: p11 }]
+    };
+    tris.map(|t| (t, [t.a, t.b, t.r]))
+}
+
+/// The height a vertex at a sample takes: the sample, or the void fill
+/// (NaN past the grid, where no written triangle has a corner).
+#[inline]
+fn vertex_height(grid: &Grid, (x, z): P) -> f64 {
+    if x as usize >= grid.width || z as usize >= grid.height {
+        return f64::NAN;
+    }
+    let k = z as usize * grid.width + x as usize;
+    let h = grid.heights[k];
+    if h.is_nan() { grid.filled.map_or(0.0, |f| f64::from(f[k])) } else { f64::from(h) }
+}
+
+/// What a triangle's samples say against its plane.
+struct Scan {
+    /// Largest |plane − sample| over its valid samples, metres.
+    error: f64,
+    /// It covers at least one valid sample.
+    valid: bool,
+}
+
+/// Scans every sample inside or on a triangle whose corners lie on samples;
+/// rows in parallel for a large one.
+fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
+    let [a, b, c] = corners;
+    // Plane h = a.h + gx·(x − a.x) + gz·(z − a.z), from the two edges at a.
+    let (ux, uz, uh) = (b.x - a.x, b.z - a.z, b.h - a.h);
+    let (vx, vz, vh) = (c.x - a.x, c.z - a.z, c.h - a.h);
+    let det = ux * vz - uz * vx;
+    let gx = (uh * vz - uz * vh) / det;
+    let gz = (ux * vh - uh * vx) / det;
+    let z0 = a.z.min(b.z).min(c.z) as u32;
+    let z1 = a.z.max(b.z).max(c.z) as u32;
+    let edges = [(a, b), (b, c), (c, a)];
+    let row = |z: u32| -> (f64, bool) {
+        let zf = f64::from(z);
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (p, q) in edges {
+            if (p.z - zf) * (q.z - zf) > 0.0 {
+                continue;
+            }
+            if p.z == q.z {
+                lo = lo.min(p.x.min(q.x));
+                hi = hi.max(p.x.max(q.x));
+            } else {
+                // Edges run at 0°, 45° or 90°: the crossing is a whole column.
+                let x = p.x + (zf - p.z) * (q.x - p.x) / (q.z - p.z);
+                lo = lo.min(x);
+                hi = hi.max(x);
+            }
+        }
+        let (mut err, mut valid) = (0.0f64, false);
+        let base = z as usize * grid.width;
+        let plane_row = a.h + gz * (zf - a.z);
+        for x in lo as usize..=hi as usize {
+            let s = grid.heights[base + x];
+            if !s.is_nan() {
+                valid = true;
+                err = err.max((plane_row + gx * (x as f64 - a.x) - f64::from(s)).abs());
+            }
+        }
+        (err, valid)
+    };
+    let join = |(e1, v1): (f64, bool), (e2, v2): (f64, bool)| (e1.max(e2), v1 || v2);
+    let (error, valid) = if z1 - z0 >= 512 {
+        (z0..=z1).into_par_iter().map(row).reduce(|| (0.0, false), join)
+    } else {
+        (z0..=z1).map(row).fold((0.0, false), join)
+    };
+    Scan { error, valid }
+}
+
+/// Largest minus smallest valid height in a footprint, metres.
+fn footprint_relief(grid: &Grid, ((x0, x1), (z0, z1)): (Span, Span)) -> f64 {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for z in z0..=z1 {
+        let row = &grid.heights[z as usize * grid.width..][x0 as usize..=x1 as usize];
+        for &h in row.iter().filter(|h| !h.is_nan()) {
+            lo = lo.min(h);
+            hi = hi.max(h);
+        }
+    }
+    if hi >= lo { f64::from(hi) - f64::from(lo) } else { 0.0 }
+}
+
+/// The bottom-up pass's state: the grid and the errors found so far.
+struct Field<'g> {
+    grid: &'g Grid<'g>,
+    xmax: u32,
+    zmax: u32,
+    step: f64,
+    /// f32 bits; each level writes only its own vertices and reads those of
+    /// the level below, so relaxed loads and stores suffice.
+    errors: Vec<AtomicU32>,
+}
+
+impl Field<'_> {
+    /// Fills the vertices of one level: the side midpoints of the squares
+    /// of `c` (`square` false: triangles whose hypotenuse is a side) or
+    /// their centres (`square` true: the halves of a square).
+    fn level(&self, c: u32, square: bool) {
+        let h = c / 2;
+        // Rows holding this level's vertices: (z, first x, x step).
+        let mut rows: Vec<(u32, u32)> = Vec::new();
+        let mut z = if square { h } else { 0 };
+        while z <= self.zmax {
+            let first = if square || z % c == 0 { h } else { 0 };
+            rows.push((z, first));
+            z += if square { c } else { h };
+        }
+        rows.par_iter().for_each(|&(z, first)| {
+            let mut x = first;
+            while x <= self.xmax {
+                let e = self.vertex(c, square, (x, z));
+                self.errors[z as usize * self.grid.width + x as usize].store(e.to_bits(), Ordering::Relaxed);
+                x += c;
+            }
+        });
+    }
+
+    /// The error of vertex `m`: the largest over the (one or two) triangles
+    /// split there that reach into the grid.
+    fn vertex(&self, c: u32, square: bool, m: P) -> f32 {
+        let h = c / 2;
+        let tris: [Option<Tri>; 2] = if square {
+            // The square of side c centred at m, cut by its diagonal.
+            let (x0, z0) = (m.0 - h, m.1 - h);
+            square_triangles(x0, z0, c).map(|(t, _)| Some(t))
+        } else if m.1 % c == 0 {
+            // A horizontal side: apexes at the centres above and below.
+            let (p, q) = ((m.0 - h, m.1), (m.0 + h, m.1));
+            [m.1.checked_sub(h).map(|zu| Tri { a: q, b: p, r: (m.0, zu) }), Some(Tri { a: p, b: q, r: (m.0, m.1 + h) })]
+        } else {
+            let (p, q) = ((m.0, m.1 - h), (m.0, m.1 + h));
+            [m.0.checked_sub(h).map(|xl| Tri { a: p, b: q, r: (xl, m.1) }), Some(Tri { a: q, b: p, r: (m.0 + h, m.1) })]
+        };
+        let mut e = 0.0f32;
+        for t in tris.into_iter().flatten() {
+            match place(&t, self.xmax, self.zmax) {
+                Place::Outside => {}
+                Place::Straddles => return f32::INFINITY,
+                Place::Inside => {
+                    let corners = [t.a, t.b, t.r].map(|p| {
+                        let h = vertex_height(self.grid, p);
+                        MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph: h }
+                    });
+                    let rounding = corners.iter().map(|v| rounds_by(v.h, self.step)).fold(0.0, f64::max);
+                    e = e.max(up_f32(scan_triangle(self.grid, &corners).error + rounding));
+                    for k in t.children(m) {
+                        if let Some(km) = k.midpoint() {
+                            let below = self.errors[km.1 as usize * self.grid.width + km.0 as usize].load(Ordering::Relaxed);
+                            e = e.max(f32::from_bits(below));
+                        }
+                    }
+                }
+            }
+        }
+        e
+    }
+}
+
+/// How far rounding `h` to a multiple of `step` moves it (0 without a step).
+fn rounds_by(h: f64, step: f64) -> f64 {
+    if step > 0.0 { (h - (h / step).round() * step).abs() } else { 0.0 }
+}
+
+/// The smallest f32 at or above `v`.
+fn up_f32(v: f64) -> f32 {
+    let f = v as f32;
+    if f64::from(f) < v { f.next_up() } else { f }
+}
+
+/// One chunk's descent through the bintree.
+struct Mesher<'a> {
+    rtin: &'a Rtin,
+    grid: &'a Grid<'a>,
+    /// The chunk's square: side and north-west corner.
+    side: u32,
+    square: P,
+    delta_m: f64,
+    /// The parent level's square side and δ (None at the top).
+    parent: Option<(u32, f64)>,
+    index: HashMap<P, u32>,
+    vertices: Vec<MeshVertex>,
+    triangles: Vec<[u32; 3]>,
+}
+
+impl Mesher<'_> {
+    /// `ph`: the parent surface's height at `t`'s corners a, b, r.
+    fn descend(&mut self, t: Tri, ph: [f64; 3]) {
+        let (x0, x1, z0, z1) = t.bbox();
+        let (sx, sz, c) = (self.square.0, self.square.1, self.side);
+        // Only what reaches into the chunk's square.
+        if x1 <= sx || x0 >= sx + c || z1 <= sz || z0 >= sz + c {
+            return;
+        }
+        let place = self.rtin.place(&t);
+        if place == Place::Outside {
+            return;
+        }
+        let coarser = |side: u32| t.hyp2() > 2 * u64::from(side) * u64::from(side);
+        let split = if coarser(c) { t.midpoint() } else { self.rtin.splits(&t, place, self.delta_m) };
+        let Some(m) = split else {
+            debug_assert_eq!(place, Place::Inside, "a triangle past the grid always splits");
+            self.emit(t, ph);
+            return;
+        };
+        let hm = vertex_height(self.grid, m);
+        // The parent's surface at m: m itself where the parent splits here
+        // too, else the middle of the hypotenuse it lies on.
+        let pm = match self.parent {
+            None => hm,
+            Some((ps, pd)) => {
+                if coarser(ps) || self.rtin.splits(&t, place, pd).is_some() {
+                    hm
+                } else {
+                    (ph[0] + ph[1]) / 2.0
+                }
+            }
+        };
+        let [k0, k1] = t.children(m);
+        self.descend(k0, [ph[2], ph[0], pm]);
+        self.descend(k1, [ph[1], ph[2], pm]);
+    }
+
+    fn emit(&mut self, t: Tri, ph: [f64; 3]) {
+        let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
+        // Counter-clockwise in (x east, z south), as the TIN's are.
+        let [a, b, c] = [t.a, t.b, t.r].map(|p| (i64::from(p.0), i64::from(p.1)));
+        if (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0) < 0 {
+            v.swap(1, 2);
+        }
+        self.triangles.push(v);
+    }
+
+    fn vertex(&mut self, p: P, ph: f64) -> u32 {
+        if let Some(&v) = self.index.get(&p) {
+            return v;
+        }
+        let v = self.vertices.len() as u32;
+        let h = vertex_height(self.grid, p);
+        self.vertices.push(MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph });
+        self.index.insert(p, v);
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::*;
+    use crate::quadtree::ChunkTree;
+
+    /// Every chunk of a grid's tree, parents before children.
+    fn meshes(w: usize, h: usize, heights: &[f32], max_error_m: f64, leaf: u32) -> (ChunkTree, Vec<ChunkMesh>) {
+        let grid = Grid::new(w, h, heights, None);
+        let tree = plan(w, h, max_error_m, None, leaf, 0);
+        let rtin = Rtin::new(&grid, &tree, None);
+        let mut out = Vec::new();
+        for l in 0..=tree.depth() {
+            for y in 0..tree.zs[l as usize].len() as u32 {
+                for x in 0..tree.xs[l as usize].len() as u32 {
+                    let key = ChunkKey { level: l, x, y };
+                    out.push(rtin.build_chunk(&grid, &tree, key, usize::MAX, None).unwrap());
+                }
+            }
+        }
+        (tree, out)
+    }
+
+    /// The surface of `mesh` at (x, z), by `pick` (h: its own, ph: its
+    /// morph target), if a triangle covers the point.
+    fn surface_at(mesh: &ChunkMesh, x: f64, z: f64, pick: fn(&MeshVertex) -> f64) -> Option<f64> {
+        mesh.triangles.iter().find_map(|t| {
+            let [a, b, c] = t.map(|v| mesh.vertices[v as usize]);
+            let d = (b.x - a.x) * (c.z - a.z) - (b.z - a.z) * (c.x - a.x);
+            let wb = ((x - a.x) * (c.z - a.z) - (z - a.z) * (c.x - a.x)) / d;
+            let wc = ((b.x - a.x) * (z - a.z) - (b.z - a.z) * (x - a.x)) / d;
+            let wa = 1.0 - wb - wc;
+            (wa >= -1e-12 && wb >= -1e-12 && wc >= -1e-12).then(|| wa * pick(&a) + wb * pick(&b) + wc * pick(&c))
+        })
+    }
+
+    /// The structure every chunk keeps: right-isosceles counter-clockwise
+    /// triangles that tile its footprint exactly, every sample within δ.
+    fn check(mesh: &ChunkMesh, w: usize, heights: &[f32]) {
+        let ((x0, x1), (z0, z1)) = mesh.footprint;
+        let mut area = 0.0;
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|v| mesh.vertices[v as usize]);
+            let cross = (b.x - a.x) * (c.z - a.z) - (b.z - a.z) * (c.x - a.x);
+            assert!(cross > 0.0, "{:?}: triangle {t:?} not counter-clockwise", mesh.key);
+            area += cross / 2.0;
+            let mut l2 = [(a, b), (b, c), (c, a)].map(|(p, q)| (q.x - p.x).powi(2) + (q.z - p.z).powi(2));
+            l2.sort_by(f64::total_cmp);
+            assert!(l2[0] == l2[1] && l2[0] + l2[1] == l2[2], "{:?}: {t:?} not right-isosceles", mesh.key);
+            for v in [a, b, c] {
+                assert!((x0 as f64..=x1 as f64).contains(&v.x) && (z0 as f64..=z1 as f64).contains(&v.z));
+            }
+        }
+        assert_eq!(area, f64::from((x1 - x0) * (z1 - z0)), "{:?}: the triangles do not tile the footprint", mesh.key);
+        for z in z0..=z1 {
+            for x in x0..=x1 {
+                let s = f64::from(heights[z as usize * w + x as usize]);
+                let on = surface_at(mesh, f64::from(x), f64::from(z), |v| v.h).expect("every sample is covered");
+                assert!((on - s).abs() <= mesh.delta_m, "{:?}: sample ({x}, {z}) is {} off", mesh.key, (on - s).abs());
+            }
+        }
+    }
+
+    #[test]
+    fn flat_3x3_is_two_triangles_at_every_level() {
+        let heights = [7.0f32; 9];
+        let (_, meshes) = meshes(3, 3, &heights, 0.5, 2);
+        for m in &meshes {
+            check(m, 3, &heights);
+            assert_eq!(m.triangles.len(), 2);
+            assert_eq!(m.max_error_m, 0.0);
+        }
+    }
+
+    #[test]
+    fn a_spike_in_3x3_is_the_centre_vertex_of_four_triangles() {
+        let mut heights = [0.0f32; 9];
+        heights[4] = 10.0;
+        let (tree, meshes) = meshes(3, 3, &heights, 1.0, 2);
+        assert_eq!(tree.depth(), 0);
+        let m = &meshes[0];
+        check(m, 3, &heights);
+        assert_eq!(m.triangles.len(), 4);
+        assert!(m.vertices.iter().any(|v| (v.x, v.z, v.h) == (1.0, 1.0, 10.0)));
+        assert_eq!(m.max_error_m, 0.0);
+    }
+
+    #[test]
+    fn a_spike_under_a_large_delta_is_left_out_and_measured() {
+        let mut heights = [0.0f32; 25];
+        heights[2 * 5 + 1] = 3.0;
+        let grid = Grid::new(5, 5, &heights, None);
+        let tree = plan(5, 5, 4.0, None, 4, 0);
+        let rtin = Rtin::new(&grid, &tree, None);
+        let m = rtin.build_chunk(&grid, &tree, ChunkKey { level: 0, x: 0, y: 0 }, usize::MAX, None).unwrap();
+        assert_eq!(m.triangles.len(), 2);
+        assert_eq!(m.max_error_m, 3.0);
+        // The vertex it would take carries the true error, not the midpoint's.
+        assert_eq!(rtin.error_at(2, 2), 3.0);
+    }
+
+    #[test]
+    fn a_step_is_followed_down_to_its_cells_and_nests() {
+        // A 2 m step between columns 2 and 3 of a 9 × 9 grid.
+        let heights: Vec<f32> = (0..81).map(|k| if k % 9 >= 3 { 2.0 } else { 0.0 }).collect();
+        let (tree, meshes) = meshes(9, 9, &heights, 0.5, 2);
+        assert_eq!(tree.depth(), 2);
+        for m in &meshes {
+            check(m, 9, &heights);
+        }
+        let leaf_triangles: usize = meshes.iter().filter(|m| m.key.level == 2).map(|m| m.triangles.len()).sum();
+        // Flat on both sides: the fine triangles stay along the step.
+        assert!(leaf_triangles < 2 * 64, "{leaf_triangles}");
+    }
+
+    #[test]
+    fn a_grid_of_no_power_of_two_is_tiled_to_its_edges() {
+        let heights: Vec<f32> = (0..7 * 5).map(|k| ((k * 37) % 11) as f32).collect();
+        let (_, meshes) = meshes(7, 5, &heights, 0.5, 2);
+        for m in &meshes {
+            check(m, 7, &heights);
+        }
+    }
+
+    #[test]
+    fn the_plan_squares_are_aligned_powers_of_two() {
+        let t = plan(8401, 4801, 1.0, None, 250, 1);
+        assert_eq!(t.xs[0], vec![(0, 8400)]);
+        assert_eq!(t.xs[1], vec![(0, 8192), (8192, 8400)]);
+        assert_eq!(t.zs[1], vec![(0, 4800)]);
+        assert_eq!(square_side(&t, 1), 8192);
+        assert_eq!(t.widest_cells(t.depth() - 1), [128, 128]);
+        assert_eq!(t.xs[t.depth() as usize], t.xs[t.depth() as usize - 1], "a refine level keeps the leaves");
+        let rooted = plan(8401, 4801, 1.0, Some(1000), 250, 0);
+        assert_eq!(rooted.xs[0].len(), 17);
+        assert_eq!(square_side(&rooted, 0), 512);
+    }
+
+    fn heights_strategy() -> impl Strategy<Value = (usize, usize, Vec<f32>, f64, u32)> {
+        (2usize..=19, 2usize..=19, prop_oneof![Just(0.05), Just(1.0), Just(30.0)], 0.01f64..20.0, 2u32..=8)
+            .prop_flat_map(|(w, h, amp, err, leaf)| {
+                (Just(w), Just(h), proptest::collection::vec(0.0..1.0f64, w * h), Just(amp), Just(err), Just(leaf))
+            })
+            .prop_map(|(w, h, u, amp, err, leaf)| {
+                // Whole multiples of amp/8: ties and exact-δ samples are common.
+                let heights = u.iter().map(|v| ((v * 8.0).floor() * amp / 8.0) as f32).collect();
+                (w, h, heights, err, leaf)
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// Every chunk within its δ; shaped by its morph targets, a child is
+        /// its parent's surface at every sample (and at every cell centre).
+        #[test]
+        fn error_stays_within_delta_and_a_morphed_child_is_its_parent((w, h, heights, err, leaf) in heights_strategy()) {
+            let (tree, meshes) = meshes(w, h, &heights, err, leaf);
+            for m in &meshes {
+                check(m, w, &heights);
+                prop_assert!(m.max_error_m <= m.delta_m);
+                let Some(pk) = tree.parent(m.key) else { continue };
+                let parent = meshes.iter().find(|p| p.key == pk).unwrap();
+                let ((x0, x1), (z0, z1)) = m.footprint;
+                for z2 in 2 * z0..=2 * z1 {
+                    for x2 in 2 * x0..=2 * x1 {
+                        let (x, z) = (f64::from(x2) / 2.0, f64::from(z2) / 2.0);
+                        let morphed = surface_at(m, x, z, |v| v.ph).unwrap();
+                        let there = surface_at(parent, x, z, |v| v.h).unwrap();
+                        prop_assert!((morphed - there).abs() <= 1e-9 * (1.0 + there.abs()),
+                            "{:?} at ({}, {}): {} against the parent's {}", m.key, x, z, morphed, there);
+                    }
+                }
+            }
+        }
+    }
+}
