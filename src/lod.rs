@@ -8,10 +8,19 @@
 //!
 //! - Screen-space error: ρ = δ·K/D with K = viewport_width / (2·tan(hfov/2))
 //!   and D the distance from the eye to the nearest point of the chunk's
-//!   bounding box ([`screen_error`]).
+//!   bounding box ([`screen_error`]). That is the shift of a point straight
+//!   ahead; off the view axis by θ the same δ moves a point by up to
+//!   1/cos²θ as much, so a client that promises "no point moves more than τ
+//!   pixels anywhere in the image" multiplies K by [`off_axis_factor`]
+//!   ([`screen_k_bound`]).
 //! - Selection, top down ([`select`]): a chunk is drawn when ρ ≤ τ, else its
 //!   children, but only once all of them are resident; until then the chunk
 //!   itself stays drawn and the missing children are requested with priority ρ.
+//! - Prefetch (Ulrich §4, "request the children of every drawn chunk"): the
+//!   children of each drawn chunk are asked for before the chunk needs to
+//!   split, by the chunk's ρ at the eye or at where the eye is heading, and
+//!   the grandchildren too where that predicted ρ is about to cross τ, so
+//!   that a moving camera finds them resident.
 //! - Morph ([`morph_weight`]): the blend weight toward the parent shape.
 //!   [`MorphSchedule::Bounded`] keeps the blended surface's screen error ≤ τ;
 //!   [`MorphSchedule::Ulrich`] is the paper's schedule, which reaches 9/8·τ.
@@ -26,6 +35,26 @@ use crate::quadtree::ChunkKey;
 /// radians, in (0, π).
 pub fn screen_k(viewport_width_px: f64, hfov_rad: f64) -> f64 {
     viewport_width_px / (2.0 * (hfov_rad / 2.0).tan())
+}
+
+/// How much more than on the view axis a vertical error can move a point
+/// anywhere in the image: 1 + tan²θ at the corner, the largest off-axis
+/// angle θ, with tan²θ = tan²(hfov/2)·(1 + (height/width)²).
+///
+/// A displacement v of a point at depth z and off-axis angle θ moves its
+/// image by at most K·|v|·√(1 + tan²θ)/z (the projection's Jacobian has
+/// singular values 1 and √(1 + tan²θ)), and z = D·cos θ, so the shift is at
+/// most K·|v|·(1 + tan²θ)/D: 1.44 at the corners of a 16:9, 60° view.
+pub fn off_axis_factor(viewport_px: [f64; 2], hfov_rad: f64) -> f64 {
+    let t = (hfov_rad / 2.0).tan();
+    let r = viewport_px[1] / viewport_px[0];
+    1.0 + t * t * (1.0 + r * r)
+}
+
+/// K · [`off_axis_factor`]: with it, ρ = δ·K/D bounds the shift of every
+/// point of the image, not only those on the view axis.
+pub fn screen_k_bound(viewport_px: [f64; 2], hfov_rad: f64) -> f64 {
+    screen_k(viewport_px[0], hfov_rad) * off_axis_factor(viewport_px, hfov_rad)
 }
 
 /// Distance in metres from `eye` to the nearest point of the box `[min, max]`
@@ -97,6 +126,15 @@ pub fn morph_weight(schedule: MorphSchedule, rho: f64, tau: f64, delta_m: f64, d
 /// surfaces' errors, since the morphed chunk is their per-point blend.
 pub fn blended_error_m(w: f64, delta_m: f64, delta_parent_m: f64) -> f64 {
     (1.0 - w) * delta_m + w * delta_parent_m
+}
+
+/// Screen error (px) of a chunk drawn at ρ and morphed by `w` toward its
+/// parent: ρ scaled by the blended surface's bound over its own δ.
+pub fn shown_error_px(rho: f64, w: f64, delta_m: f64, delta_parent_m: Option<f64>) -> f64 {
+    match delta_parent_m {
+        Some(dp) if delta_m > 0.0 && w > 0.0 => rho * blended_error_m(w, delta_m, dp) / delta_m,
+        _ => rho,
+    }
 }
 
 /// One chunk of the tree, as the selection needs it.
@@ -214,8 +252,13 @@ impl LodTree {
 pub struct LodView {
     /// Eye position, world metres (glTF frame).
     pub eye: [f64; 3],
-    /// K from [`screen_k`], pixels.
+    /// K from [`screen_k`] (or [`screen_k_bound`] to bound the whole
+    /// image), pixels.
     pub k: f64,
+    /// Where the eye is expected to be shortly (the last frames' motion
+    /// carried forward): prefetch ranks by the larger ρ of the two eyes.
+    /// `None` for a still camera.
+    pub eye_ahead: Option<[f64; 3]>,
     /// Screen-space error tolerance τ, pixels.
     pub tau_px: f64,
     /// Morph schedule for the drawn chunks.
@@ -250,6 +293,14 @@ pub struct Selection {
     /// cache must keep these, or the cut above the drawn chunks breaks (or
     /// siblings evict each other for ever).
     pub touched: Vec<usize>,
+    /// Chunks the cut does not need yet but soon may (children of drawn
+    /// chunks, and grandchildren where the predicted ρ approaches τ), not
+    /// resident, with their priority (the predicted ρ of the chunk that will
+    /// split into them); none of them is in `requests`. Highest first.
+    pub prefetch: Vec<(usize, f64)>,
+    /// Resident chunks kept for the same reason: a cache should evict them
+    /// only after everything else not in `touched`.
+    pub kept: Vec<usize>,
 }
 
 /// Chooses the cut for one frame, top down.
@@ -266,6 +317,21 @@ pub fn select(
     visible: impl Fn(usize) -> bool,
 ) -> Selection {
     let mut sel = Selection::default();
+    let rho_at = |n: usize, eye: [f64; 3]| {
+        let node = &tree.nodes[n];
+        screen_error(node.delta_m, distance_to_box(eye, node.min, node.max), view.k)
+    };
+    // The larger ρ of the eye now and the eye ahead, and whether it grows.
+    let predicted = |n: usize| {
+        let now = rho_at(n, view.eye);
+        match view.eye_ahead {
+            Some(a) => {
+                let ahead = rho_at(n, a);
+                (now.max(ahead), ahead > now)
+            }
+            None => (now, false),
+        }
+    };
     let mut stack: Vec<usize> = tree.roots.iter().rev().copied().collect();
     while let Some(n) = stack.pop() {
         if !visible(n) {
@@ -298,10 +364,47 @@ pub fn select(
         let dp = tree.parent_delta(n);
         let weight = morph_weight(view.schedule, rho, view.tau_px, node.delta_m, dp);
         sel.draws.push(Draw { node: n, rho, weight, within_tau: rho <= view.tau_px });
+        if rho <= view.tau_px {
+            prefetch_below(tree, view, n, &predicted, &resident, &mut sel);
+        }
     }
-    sel.requests.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let by_priority = |a: &(usize, f64), b: &(usize, f64)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+    sel.requests.sort_by(by_priority);
     sel.requests.dedup_by_key(|r| r.0);
+    sel.prefetch.sort_by(by_priority);
+    sel.prefetch.dedup_by_key(|r| r.0);
     sel
+}
+
+/// The prefetch of one drawn chunk `n` (within τ): its children, and where
+/// the eye approaches it and a child's predicted ρ passes τ/2 (the child
+/// will itself split soon after it is drawn) that child's children.
+fn prefetch_below(
+    tree: &LodTree,
+    view: &LodView,
+    n: usize,
+    predicted: &impl Fn(usize) -> (f64, bool),
+    resident: &impl Fn(usize) -> bool,
+    sel: &mut Selection,
+) {
+    let (rho_n, nearing) = predicted(n);
+    for &c in &tree.nodes[n].children {
+        if !resident(c) {
+            sel.prefetch.push((c, rho_n));
+            continue;
+        }
+        sel.kept.push(c);
+        let (rho_c, _) = predicted(c);
+        if nearing && rho_c > view.tau_px / 2.0 {
+            for &g in &tree.nodes[c].children {
+                if resident(g) {
+                    sel.kept.push(g);
+                } else {
+                    sel.prefetch.push((g, rho_c));
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -341,7 +444,13 @@ mod tests {
     }
 
     fn view(eye: [f64; 3], tau: f64) -> LodView {
-        LodView { eye, k: screen_k(640.0, 60f64.to_radians()), tau_px: tau, schedule: MorphSchedule::Bounded }
+        LodView {
+            eye,
+            k: screen_k(640.0, 60f64.to_radians()),
+            eye_ahead: None,
+            tau_px: tau,
+            schedule: MorphSchedule::Bounded,
+        }
     }
 
     #[test]
@@ -486,6 +595,101 @@ mod tests {
         assert_eq!(morph_weight(MorphSchedule::Bounded, f64::INFINITY, 1.0, 1.0, Some(2.0)), 0.0);
         assert_eq!(morph_weight(MorphSchedule::Bounded, 2.0, 1.0, 1.0, Some(2.0)), 0.0);
         assert_eq!(morph_weight(MorphSchedule::Ulrich, 0.1, 1.0, 1.0, Some(2.0)), 1.0);
+    }
+
+    /// The off-axis factor is the worst shift of a point anywhere in the
+    /// image per unit of δ·K/D: sampled over displacement directions at the
+    /// corner it is reached, and nowhere exceeded.
+    #[test]
+    fn off_axis_factor_bounds_the_shift_at_the_corner() {
+        let (w, h, hfov) = (1920.0, 1080.0, 60f64.to_radians());
+        let f = off_axis_factor([w, h], hfov);
+        assert!((f - 1.4398).abs() < 1e-3, "{f}");
+        let k = screen_k(w, hfov);
+        let t = (hfov / 2.0).tan();
+        // The corner pixel's direction, at depth z; pixel = K·(x/z, y/z).
+        let z = 1000.0;
+        let p = [t * z, t * h / w * z, z];
+        let (d, eps) = ((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt(), 1e-4);
+        let mut worst: f64 = 0.0;
+        for i in 0..200 {
+            for j in 0..100 {
+                let (az, el) = (f64::from(i) * std::f64::consts::TAU / 200.0, (f64::from(j) / 99.0 - 0.5) * 3.14159);
+                let v = [el.cos() * az.cos(), el.sin(), el.cos() * az.sin()].map(|c| c * eps);
+                let q = [p[0] + v[0], p[1] + v[1], p[2] + v[2]];
+                let shift = ((q[0] / q[2] - p[0] / p[2]).powi(2) + (q[1] / q[2] - p[1] / p[2]).powi(2)).sqrt() * k;
+                worst = worst.max(shift / (eps * k / d));
+            }
+        }
+        assert!(worst <= f * (1.0 + 1e-3) && worst > f * 0.995, "worst {worst}, factor {f}");
+        // On the axis nothing is added: a square view at 90° doubles at the corner's tan² = 2.
+        assert!((off_axis_factor([1.0, 1.0], std::f64::consts::FRAC_PI_2) - 3.0).abs() < 1e-12);
+        assert!((screen_k_bound([w, h], hfov) - k * f).abs() < 1e-9);
+    }
+
+    /// Every drawn chunk's missing children are prefetched, at the drawn
+    /// chunk's ρ, and its resident ones kept; nothing prefetched is also a
+    /// request.
+    #[test]
+    fn children_of_every_drawn_chunk_are_prefetched() {
+        let tree = square_tree(4, 1000.0, 16.0);
+        let v = view([500.0, 3000.0, 500.0], 2.0);
+        let upto_level1 = |n: usize| tree.nodes[n].key.level <= 1;
+        let sel = select(&tree, &v, upto_level1, |_| true);
+        let drawn_inner: Vec<usize> = sel
+            .draws
+            .iter()
+            .filter(|d| d.within_tau && !tree.nodes[d.node].children.is_empty())
+            .map(|d| d.node)
+            .collect();
+        assert!(!drawn_inner.is_empty());
+        for &d in &drawn_inner {
+            for &c in &tree.nodes[d].children {
+                let p = sel.prefetch.iter().find(|r| r.0 == c).unwrap_or_else(|| panic!("child {c} of {d}"));
+                assert!((p.1 - sel.draws.iter().find(|x| x.node == d).unwrap().rho).abs() < 1e-12);
+            }
+        }
+        assert!(sel.prefetch.windows(2).all(|w| w[0].1 >= w[1].1));
+        assert!(sel.prefetch.iter().all(|p| sel.requests.iter().all(|r| r.0 != p.0)));
+        // Everything resident: nothing to fetch, the drawn chunks' children kept.
+        let sel = select(&tree, &v, |_| true, |_| true);
+        assert!(sel.prefetch.is_empty() && sel.requests.is_empty());
+        for d in sel.draws.iter().filter(|d| !tree.nodes[d.node].children.is_empty()) {
+            assert!(tree.nodes[d.node].children.iter().all(|c| sel.kept.contains(c)));
+        }
+    }
+
+    /// Grandchildren are prefetched only where the eye approaches, and by the
+    /// ρ predicted at the eye ahead.
+    #[test]
+    fn grandchildren_are_prefetched_where_the_eye_is_heading() {
+        let tree = square_tree(4, 1000.0, 16.0);
+        let level = |n: usize| tree.nodes[n].key.level;
+        let resident = |n: usize| level(n) <= 1;
+        // High enough that the root is within τ (ρ = 16·554/4990 = 1.78 px).
+        let mut v = view([500.0, 5000.0, 500.0], 2.0);
+        let still = select(&tree, &v, resident, |_| true);
+        assert!(still.draws.iter().all(|d| level(d.node) == 0), "{:?}", still.draws);
+        assert!(still.prefetch.is_empty(), "the root's children are resident");
+        // Descending fast toward the middle: the level-1 chunks' ρ ahead passes τ/2.
+        v.eye_ahead = Some([500.0, 2000.0, 500.0]);
+        let moving = select(&tree, &v, resident, |_| true);
+        assert!(moving.draws.iter().all(|d| level(d.node) == 0));
+        assert!(!moving.prefetch.is_empty());
+        assert!(moving.prefetch.iter().all(|p| level(p.0) == 2), "{:?}", moving.prefetch);
+        // Climbing away instead: nothing more.
+        v.eye = [500.0, 4500.0, 500.0];
+        v.eye_ahead = Some([500.0, 6000.0, 500.0]);
+        let sel = select(&tree, &v, resident, |_| true);
+        assert!(sel.draws.iter().all(|d| level(d.node) == 0));
+        assert!(sel.prefetch.is_empty(), "{:?}", sel.prefetch);
+    }
+
+    #[test]
+    fn shown_error_scales_by_the_blend() {
+        assert_eq!(shown_error_px(0.8, 0.0, 1.0, Some(2.0)), 0.8);
+        assert!((shown_error_px(0.8, 0.25, 1.0, Some(2.0)) - 1.0).abs() < 1e-12);
+        assert_eq!(shown_error_px(3.0, 1.0, 1.0, None), 3.0);
     }
 
     #[test]

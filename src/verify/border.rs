@@ -208,7 +208,7 @@ mod tests {
         }
     }
 
-    /// California at 1 m (f32, textured; stop 29 and 30 builds): chunks
+    /// California at 1 m (f32, textured): chunks
     /// 6/37/4 and 6/37/5 share the line z = 375, where crowded cut points
     /// put two vertices at x = 2456.5113 in each. Read back, chunk 4 has
     /// them 4 µm apart in height and chunk 5 at one height, so exact

@@ -70,12 +70,13 @@ fn main() -> Result<()> {
     let base = Camera { eye: [0.0; 3], yaw_deg: 0.0, pitch_deg: 0.0, hfov_deg: 60.0, near_m: 1.0 };
     let frames = Flythrough::read(std::path::Path::new(&args[1]))?.frames(&base);
     let aspect = f64::from(size[0]) / f64::from(size[1]);
-    let k = lod::screen_k(f64::from(size[0]), base.hfov_deg.to_radians());
+    // The viewer's K: ρ bounds the shift anywhere in the image.
+    let k = lod::screen_k_bound([f64::from(size[0]), f64::from(size[1])], base.hfov_deg.to_radians());
     let mut costs: HashMap<usize, Cost> = HashMap::new();
     let mut columns: [Vec<f64>; 4] = Default::default();
     for cam in &frames {
         let frustum = cam.frustum(aspect);
-        let view = LodView { eye: cam.eye, k, tau_px: tau, schedule: MorphSchedule::Bounded };
+        let view = LodView { eye: cam.eye, k, eye_ahead: None, tau_px: tau, schedule: MorphSchedule::Bounded };
         let sel = lod::select(
             &ts.tree,
             &view,

@@ -35,6 +35,9 @@ impl Flythrough {
         if f.cameras.is_empty() || f.frames_per_segment == 0 {
             bail!("{}: needs at least one camera and frames_per_segment ≥ 1", path.display());
         }
+        if let Some(i) = f.cameras.iter().position(|c| c[4].abs() > 89.0) {
+            bail!("{}: camera {i} has pitch {}°, beyond ±89°", path.display(), f.cameras[i][4]);
+        }
         Ok(f)
     }
 
@@ -54,5 +57,64 @@ impl Flythrough {
         }
         out.push(cam(*self.cameras.last().expect("non-empty")));
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &str) -> Result<Flythrough> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("path.json");
+        std::fs::write(&p, text).unwrap();
+        Flythrough::read(&p)
+    }
+
+    fn base() -> Camera {
+        Camera { eye: [0.0; 3], yaw_deg: 0.0, pitch_deg: 0.0, hfov_deg: 50.0, near_m: 2.0 }
+    }
+
+    #[test]
+    fn frames_run_from_each_camera_to_the_next_and_end_on_the_last() {
+        let f = read(r#"{"cameras": [[0,10,0,0,-10], [40,10,0,90,-30], [40,50,80,90,-30]], "frames_per_segment": 4}"#)
+            .unwrap();
+        let frames = f.frames(&base());
+        assert_eq!(frames.len(), 2 * 4 + 1);
+        assert_eq!(frames[0].eye, [0.0, 10.0, 0.0]);
+        assert_eq!(frames[2].eye, [20.0, 10.0, 0.0]);
+        assert_eq!((frames[2].yaw_deg, frames[2].pitch_deg), (45.0, -20.0));
+        assert_eq!(frames[4].eye, [40.0, 10.0, 0.0]);
+        assert_eq!(frames[8].eye, [40.0, 50.0, 80.0]);
+        assert!(frames.iter().all(|c| c.hfov_deg == 50.0 && c.near_m == 2.0), "fov and near from the base");
+        // One camera: one frame; the default is 30 frames a segment.
+        let f = read(r#"{"cameras": [[1,2,3,4,5]]}"#).unwrap();
+        assert_eq!(f.frames_per_segment, 30);
+        assert_eq!(f.frames(&base()).len(), 1);
+    }
+
+    #[test]
+    fn yaw_turns_the_short_way_round() {
+        let f = read(r#"{"cameras": [[0,0,0,350,0], [0,0,0,10,0]], "frames_per_segment": 2}"#).unwrap();
+        let frames = f.frames(&base());
+        assert_eq!(frames[1].yaw_deg, 360.0, "through north, not back through 180");
+    }
+
+    #[test]
+    fn bad_files_are_errors_naming_the_file() {
+        for (text, says) in [
+            ("", "not a flythrough"),
+            ("{", "not a flythrough"),
+            (r#"{"cameras": []}"#, "at least one camera"),
+            (r#"{"cameras": [[0,0,0,0,0]], "frames_per_segment": 0}"#, "frames_per_segment"),
+            (r#"{"cameras": [[0,0,0,0]]}"#, "not a flythrough"),
+            (r#"{"cameras": [[0,0,0,0,0]], "speed": 3}"#, "not a flythrough"),
+            (r#"{"cameras": [[0,0,0,0,0], [0,0,0,0,95]]}"#, "camera 1 has pitch 95"),
+        ] {
+            let e = format!("{:#}", read(text).expect_err(text));
+            assert!(e.contains("path.json") && e.contains(says), "{text}: {e}");
+        }
+        let e = format!("{:#}", Flythrough::read(Path::new("/nonexistent/fly.json")).unwrap_err());
+        assert!(e.contains("fly.json: cannot read"), "{e}");
     }
 }

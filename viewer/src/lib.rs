@@ -9,6 +9,7 @@
 
 pub mod camera;
 pub mod flythrough;
+pub mod input;
 pub mod pager;
 pub mod render;
 pub mod scene;

@@ -12,13 +12,15 @@ use clap::{Parser, ValueEnum};
 use terrachunk::lod::MorphSchedule;
 use terrachunk_view::camera::Camera;
 use terrachunk_view::flythrough::Flythrough;
-use terrachunk_view::render::Renderer;
+use terrachunk_view::input::{self, Move};
+use terrachunk_view::render::{Mode, Renderer, sun_direction};
 use terrachunk_view::scene::Tileset;
 use terrachunk_view::viewer::{FrameStats, Options, Target, Viewer};
 use winit::application::ApplicationHandler;
 use winit::event::{DeviceEvent, ElementState, MouseButton, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::keyboard::{Key, KeyCode, PhysicalKey};
+
 use winit::window::{Window, WindowId};
 
 #[derive(Parser)]
@@ -26,9 +28,16 @@ use winit::window::{Window, WindowId};
 struct Cli {
     /// Tileset directory (holds tileset.json and tiles/).
     dir: PathBuf,
-    /// Screen-space error tolerance τ, pixels (`+`/`-` change it by √2).
-    #[arg(long, default_value_t = 2.0)]
-    tau: f64,
+    /// Screen-space error tolerance τ, pixels (`+`/`-` change it by √2):
+    /// no point of the image is drawn more than τ pixels from where the
+    /// tileset's finest level puts it, corners included. At most the
+    /// tileset's τ_max (its textures are sized for it) unless --force-tau
+    /// [default: 2, or τ_max if lower].
+    #[arg(long)]
+    tau: Option<f64>,
+    /// Allow τ past the tileset's τ_max.
+    #[arg(long)]
+    force_tau: bool,
     /// Morph schedule: `bounded` keeps the screen error ≤ τ; `ulrich` is the
     /// paper's, up to 9/8·τ mid-morph.
     #[arg(long, value_enum, default_value_t = MorphArg::Bounded)]
@@ -36,6 +45,16 @@ struct Cli {
     /// GPU memory budget for chunks, MiB.
     #[arg(long, default_value_t = 512)]
     budget_mb: u64,
+    /// Most chunk bytes uploaded per frame, MiB (at least one chunk goes).
+    #[arg(long, default_value_t = 32)]
+    upload_mb_per_frame: u64,
+    /// Frames over which a chunk whose children came late morphs in (0: it pops).
+    #[arg(long, default_value_t = 8)]
+    fade_frames: u32,
+    /// Load only what the cut waits for (no prefetch of children): to see
+    /// what prefetch buys.
+    #[arg(long)]
+    no_prefetch: bool,
     /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 60.0)]
     hfov: f64,
@@ -58,6 +77,13 @@ struct Cli {
     /// Write per-frame statistics (CSV) here.
     #[arg(long)]
     stats: Option<PathBuf>,
+    /// Headless flythrough: also write every `--frames-every`-th frame into
+    /// this directory as `frame_NNNN.png`.
+    #[arg(long)]
+    frames: Option<PathBuf>,
+    /// See `--frames`.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
+    frames_every: u32,
     /// Start with fog off.
     #[arg(long)]
     no_fog: bool,
@@ -68,9 +94,16 @@ struct Cli {
     /// Start with lighting off.
     #[arg(long)]
     no_lighting: bool,
-    /// Start with the wireframe overlay on.
-    #[arg(long)]
-    wireframe: bool,
+    /// Start in this mode (`w` cycles them).
+    #[arg(long, value_enum, default_value_t = ModeArg::Shaded)]
+    mode: ModeArg,
+    /// Sun `azimuth,elevation` in degrees (clockwise from north, above the
+    /// horizon) [default: the tileset's hillshade sun, else 315,45].
+    #[arg(long, value_parser = parse_sun, allow_hyphen_values = true)]
+    sun: Option<[f64; 2]>,
+    /// Fog and background colour `r,g,b`, 0–1 [default: 0.62,0.72,0.85].
+    #[arg(long, value_parser = parse_colour)]
+    fog_colour: Option<[f64; 3]>,
     /// Loader threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
@@ -80,6 +113,38 @@ struct Cli {
 enum MorphArg {
     Bounded,
     Ulrich,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ModeArg {
+    Shaded,
+    Wireframe,
+    Overlay,
+}
+
+fn numbers<const N: usize>(s: &str, what: &str) -> Result<[f64; N], String> {
+    let v: Vec<f64> =
+        s.split(',').map(|t| t.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("{s:?}: not finite"));
+    }
+    v.try_into().map_err(|_| format!("expected {what}"))
+}
+
+fn parse_sun(s: &str) -> Result<[f64; 2], String> {
+    let [a, e] = numbers::<2>(s, "azimuth,elevation")?;
+    if !(-90.0..=90.0).contains(&e) {
+        return Err(format!("elevation {e} is not within ±90°"));
+    }
+    Ok([a, e])
+}
+
+fn parse_colour(s: &str) -> Result<[f64; 3], String> {
+    let c = numbers::<3>(s, "r,g,b")?;
+    if c.iter().any(|v| !(0.0..=1.0).contains(v)) {
+        return Err(format!("{s:?}: each channel within 0..=1"));
+    }
+    Ok(c)
 }
 
 fn parse_size(s: &str) -> Result<[u32; 2], String> {
@@ -99,27 +164,52 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("terrachunk-view: {e:#}");
-            std::process::ExitCode::FAILURE
+            // Bad input (a tileset it cannot read, a setting it refuses): 2.
+            std::process::ExitCode::from(2)
         }
     }
 }
 
-fn options(cli: &Cli, ts: &Tileset) -> Options {
+fn options(cli: &Cli, ts: &Tileset) -> Result<Options> {
     let mut o = Options::for_tileset(ts);
-    o.tau_px = cli.tau;
+    o.force_tau = cli.force_tau;
+    if let Some(t) = cli.tau {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--tau {t}: must be a positive number of pixels");
+        }
+        if let Some(m) = ts.tau_max_px.filter(|&m| t > m && !cli.force_tau) {
+            bail!(
+                "--tau {t} px is past the tileset's τ_max {m} px (its textures would be magnified); --force-tau allows it"
+            );
+        }
+        o.tau_px = t;
+    }
     o.schedule = match cli.morph {
         MorphArg::Bounded => MorphSchedule::Bounded,
         MorphArg::Ulrich => MorphSchedule::Ulrich,
     };
     o.budget_bytes = cli.budget_mb << 20;
+    o.upload_bytes_per_frame = cli.upload_mb_per_frame << 20;
+    o.fade_frames = cli.fade_frames;
+    o.prefetch = !cli.no_prefetch;
     o.threads = cli.threads;
     o.look.fog = !cli.no_fog;
     if let Some(d) = cli.fog_density {
         o.look.fog_density = d;
     }
+    if let Some([a, e]) = cli.sun {
+        o.look.sun = sun_direction(a, e);
+    }
+    if let Some(c) = cli.fog_colour {
+        o.look.clear = c;
+    }
     o.look.lighting = !cli.no_lighting;
-    o.look.wireframe = cli.wireframe;
-    o
+    o.look.mode = match cli.mode {
+        ModeArg::Shaded => Mode::Shaded,
+        ModeArg::Wireframe => Mode::Wireframe,
+        ModeArg::Overlay => Mode::Overlay,
+    };
+    Ok(o)
 }
 
 /// South of the terrain, above its highest point, looking north and down.
@@ -156,6 +246,7 @@ fn run(cli: Cli) -> Result<()> {
     }
     let event_loop = EventLoop::new().context("opening a window (no display? use --headless)")?;
     let mut app = App { cli, state: None, keys: HashSet::new(), look_mode: false, error: None };
+
     event_loop.run_app(&mut app)?;
     match app.error {
         Some(e) => Err(e),
@@ -166,7 +257,7 @@ fn run(cli: Cli) -> Result<()> {
 fn headless(cli: &Cli) -> Result<()> {
     let renderer = terrachunk_view::headless_renderer()?;
     let ts = Tileset::open(&cli.dir)?;
-    let opts = options(cli, &ts);
+    let opts = options(cli, &ts)?;
     let cam = camera(cli, &ts);
     let mut v = Viewer::open(&cli.dir, renderer, Some(opts))?;
     let targets = v.renderer.targets(cli.size);
@@ -188,16 +279,29 @@ fn headless(cli: &Cli) -> Result<()> {
         // Frames back to back: whatever is not loaded yet is simply not
         // drawn finer (see the pending_loads column).
         let frames = Flythrough::read(path)?.frames(&cam);
-        let mut total = 0.0;
+        let (mut total, mut worst, mut over, mut blank) = (0.0, 0.0f64, 0, 0);
+        if let Some(d) = &cli.frames {
+            std::fs::create_dir_all(d).with_context(|| format!("{}: cannot create", d.display()))?;
+        }
         for c in &frames {
             let st = v.frame(c, cli.size, Target::Offscreen(&targets));
+            if let Some(d) = cli.frames.as_ref().filter(|_| st.frame % u64::from(cli.frames_every) == 0) {
+                let out = d.join(format!("frame_{:04}.png", st.frame));
+                let px = v.renderer.read_colour(&targets);
+                image::save_buffer(&out, &px, cli.size[0], cli.size[1], image::ExtendedColorType::Rgba8)
+                    .with_context(|| format!("{}: cannot write", out.display()))?;
+            }
             total += st.frame_ms;
+            worst = worst.max(st.max_rho_px);
+            over += usize::from(st.over_tau > 0);
+            blank += usize::from(st.chunks == 0);
             row(&st)?;
         }
         println!(
-            "{} frames, {:.1} ms/frame mean, on {}",
+            "{} frames, {:.1} ms/frame mean, worst ρ {worst:.3} px at τ {} px, {over} frames over τ, {blank} blank, on {}",
             frames.len(),
             total / frames.len().max(1) as f64,
+            v.opts.tau_px,
             v.renderer.adapter_info
         );
     } else {
@@ -205,7 +309,7 @@ fn headless(cli: &Cli) -> Result<()> {
         v.settle(&cam, cli.size)?;
         let st = v.frame(&cam, cli.size, Target::Offscreen(&targets));
         row(&st)?;
-        println!("{}", hud(&st, v.opts.tau_px));
+        println!("{}", hud(&st, v.opts.tau_px, v.opts.look.mode));
     }
     if let Some(out) = &cli.out {
         let px = v.renderer.read_colour(&targets);
@@ -215,17 +319,48 @@ fn headless(cli: &Cli) -> Result<()> {
     Ok(())
 }
 
-fn hud(st: &FrameStats, tau: f64) -> String {
+/// The status line: τ and the frame's worst screen error, and for chunks
+/// shown above τ why (children loading, not fitting the memory budget, or
+/// morphing in).
+fn hud(st: &FrameStats, tau: f64, mode: Mode) -> String {
     let levels: Vec<String> = st.per_level.iter().map(|n| n.to_string()).collect();
+    let over = if st.over_tau == 0 {
+        "all within τ".to_string()
+    } else {
+        format!(
+            "{} over τ ({} loading, {} budget, {} morphing in)",
+            st.over_tau, st.over_tau_loading, st.over_tau_budget, st.over_tau_fading
+        )
+    };
     format!(
-        "τ {:.2} px | chunks/level [{}] | {} tris | {:.1} MB | {:.1} ms | {} loading",
+        "τ {:.2} px, worst ρ {:.2} px, {over} | {mode:?} | chunks/level [{}] | {} tris | {:.1} MB | {:.1} ms | {} loading",
         tau,
+        st.max_rho_px,
         levels.join(" "),
         st.triangles,
         st.resident_bytes as f64 / (1 << 20) as f64,
         st.frame_ms,
         st.pending
     )
+}
+
+/// The flight directions the held keys ask for: arrows and PageUp/PageDown
+/// any time, WASD/QE while the right mouse button is held.
+fn moves(keys: &HashSet<KeyCode>, look_mode: bool) -> HashSet<Move> {
+    let held = |k| keys.contains(&k);
+    [
+        (Move::Forward, KeyCode::ArrowUp, KeyCode::KeyW),
+        (Move::Back, KeyCode::ArrowDown, KeyCode::KeyS),
+        (Move::Right, KeyCode::ArrowRight, KeyCode::KeyD),
+        (Move::Left, KeyCode::ArrowLeft, KeyCode::KeyA),
+        (Move::Up, KeyCode::PageUp, KeyCode::KeyE),
+        (Move::Down, KeyCode::PageDown, KeyCode::KeyQ),
+    ]
+    .into_iter()
+    .filter(|&(_, any, fly)| held(any) || (look_mode && held(fly)))
+    .map(|(m, _, _)| m)
+    .chain((held(KeyCode::ShiftLeft) || held(KeyCode::ShiftRight)).then_some(Move::Fast))
+    .collect()
 }
 
 struct WinState {
@@ -284,12 +419,15 @@ impl App {
         surface.configure(&renderer.device, &config);
         let depth = renderer.depth_view([config.width, config.height]);
         let ts = Tileset::open(&self.cli.dir)?;
-        let opts = options(&self.cli, &ts);
+        let opts = options(&self.cli, &ts)?;
         let cam = camera(&self.cli, &ts);
         let viewer = Viewer::open(&self.cli.dir, renderer, Some(opts))?;
         println!("terrachunk-view on {}", viewer.renderer.adapter_info);
         println!("keys: hold the right mouse button to look and fly (WASD, Q/E down/up, shift ×4);");
-        println!("      arrows/PageUp/PageDown fly any time; f fog, l lighting, w wireframe, +/- τ, q quit");
+        println!(
+            "      arrows/PageUp/PageDown fly any time; f fog, l lighting, w shaded/wireframe/both, k skirts, \
+             m morph schedule, +/- τ, q quit"
+        );
         self.state = Some(WinState {
             window,
             surface,
@@ -308,34 +446,7 @@ impl App {
         let now = Instant::now();
         let dt = (now - s.last).as_secs_f64().min(0.25);
         s.last = now;
-        // Fly speed follows the height above the terrain's lowest point.
-        let alt = (s.cam.eye[1] - s.viewer.tileset.bounds.0[1]).max(5.0);
-        let mut speed = alt * 0.6 * dt;
-        if self.keys.contains(&KeyCode::ShiftLeft) || self.keys.contains(&KeyCode::ShiftRight) {
-            speed *= 4.0;
-        }
-        let (f, r) = (s.cam.forward(), s.cam.right());
-        let mut mv = [0.0; 3];
-        let held = |k| self.keys.contains(&k);
-        let fly = self.look_mode;
-        let axes = [
-            (held(KeyCode::ArrowUp) || (fly && held(KeyCode::KeyW)), f, 1.0),
-            (held(KeyCode::ArrowDown) || (fly && held(KeyCode::KeyS)), f, -1.0),
-            (held(KeyCode::ArrowRight) || (fly && held(KeyCode::KeyD)), r, 1.0),
-            (held(KeyCode::ArrowLeft) || (fly && held(KeyCode::KeyA)), r, -1.0),
-            (held(KeyCode::PageUp) || (fly && held(KeyCode::KeyE)), [0.0, 1.0, 0.0], 1.0),
-            (held(KeyCode::PageDown) || (fly && held(KeyCode::KeyQ)), [0.0, 1.0, 0.0], -1.0),
-        ];
-        for (on, dir, sign) in axes {
-            if on {
-                for (m, d) in mv.iter_mut().zip(dir) {
-                    *m += sign * d * speed;
-                }
-            }
-        }
-        for (e, m) in s.cam.eye.iter_mut().zip(mv) {
-            *e += m;
-        }
+        input::fly(&mut s.cam, &moves(&self.keys, self.look_mode), dt, s.viewer.tileset.bounds.0[1]);
         let frame = match s.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             _ => {
@@ -349,7 +460,7 @@ impl App {
         s.viewer.renderer.queue.present(frame);
         if (now - s.hud_at).as_secs_f64() > 0.5 {
             s.hud_at = now;
-            let line = hud(&st, s.viewer.opts.tau_px);
+            let line = hud(&st, s.viewer.opts.tau_px, s.viewer.opts.look.mode);
             s.window.set_title(&format!("terrachunk-view | {line}"));
             println!("{line}");
         }
@@ -392,17 +503,10 @@ impl ApplicationHandler for App {
                     return;
                 }
                 let Some(s) = self.state.as_mut() else { return };
-                let look = &mut s.viewer.opts.look;
-                if let Key::Character(c) = &event.logical_key {
-                    match c.as_str() {
-                        "f" => look.fog = !look.fog,
-                        "l" => look.lighting = !look.lighting,
-                        "w" => look.wireframe = !look.wireframe,
-                        "+" | "=" => s.viewer.opts.tau_px *= std::f64::consts::SQRT_2,
-                        "-" => s.viewer.opts.tau_px /= std::f64::consts::SQRT_2,
-                        "q" => el.exit(),
-                        _ => {}
-                    }
+                if let Key::Character(c) = &event.logical_key
+                    && input::key(&mut s.viewer.opts, c.as_str()) == input::Action::Quit
+                {
+                    el.exit();
                 }
             }
             WindowEvent::RedrawRequested => self.redraw(),
@@ -412,8 +516,7 @@ impl ApplicationHandler for App {
 
     fn device_event(&mut self, _el: &ActiveEventLoop, _id: winit::event::DeviceId, event: DeviceEvent) {
         if let (DeviceEvent::MouseMotion { delta }, true, Some(s)) = (event, self.look_mode, self.state.as_mut()) {
-            s.cam.yaw_deg = (s.cam.yaw_deg + delta.0 * 0.15).rem_euclid(360.0);
-            s.cam.pitch_deg = (s.cam.pitch_deg - delta.1 * 0.15).clamp(-89.0, 89.0);
+            input::look(&mut s.cam, delta.0, delta.1);
         }
     }
 

@@ -15,11 +15,24 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use crate::scene::{ChunkMesh, load_chunk};
+use crate::scene::{ChunkMesh, load_chunk_under};
+
+/// One chunk to load.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Load {
+    /// Node index.
+    pub node: usize,
+    /// Priority (higher first): the screen error that waits for it.
+    pub priority: f64,
+    /// Its file.
+    pub path: PathBuf,
+    /// Its parent's file, whose normals its vertices morph toward.
+    pub parent: Option<PathBuf>,
+}
 
 struct Queue {
-    /// (priority, node, path), not yet started.
-    waiting: Vec<(f64, usize, PathBuf)>,
+    /// Not yet started, lowest priority first.
+    waiting: Vec<Load>,
     /// Workers wait while this is set (tests: loads that never finish).
     paused: bool,
     stop: bool,
@@ -69,28 +82,29 @@ impl Pager {
         }
     }
 
-    /// Replaces the queue with `wanted` (node, priority, path), highest
-    /// priority first; never blocks on I/O.
-    pub fn request(&mut self, wanted: &[(usize, f64, PathBuf)]) {
+    /// Replaces the queue with `wanted`, most wanted first (the order
+    /// given, which the workers keep); never blocks on I/O.
+    pub fn request(&mut self, wanted: &[Load]) {
         let mut q = self.shared.queue.lock().expect("pager lock");
         // Requests still queued but no longer wanted are dropped.
-        for (_, n, _) in q.waiting.drain(..) {
-            self.in_flight.remove(&n);
+        for l in q.waiting.drain(..) {
+            self.in_flight.remove(&l.node);
         }
         let mut room = self.max_pending.saturating_sub(self.in_flight.len() + self.ready.len());
-        for (n, p, path) in wanted {
+        for l in wanted {
             if room == 0 {
                 break;
             }
+            let n = &l.node;
             if self.in_flight.contains(n) || self.ready.contains_key(n) || self.failed.contains_key(n) {
                 continue;
             }
-            q.waiting.push((*p, *n, path.clone()));
+            q.waiting.push(l.clone());
             self.in_flight.insert(*n);
             room -= 1;
         }
-        // Workers pop from the end: lowest priority first in the vector.
-        q.waiting.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+        // Workers pop from the end.
+        q.waiting.reverse();
         drop(q);
         self.shared.wake.notify_all();
     }
@@ -100,6 +114,19 @@ impl Pager {
         while let Ok((n, r)) = self.done.try_recv() {
             self.finish(n, r);
         }
+    }
+
+    /// Waits until nothing is queued or decoding (or `timeout` passes):
+    /// tests that fix how many frames a load takes. Never inside a frame.
+    pub fn wait_idle(&mut self, timeout: Duration) -> bool {
+        let until = std::time::Instant::now() + timeout;
+        while !self.in_flight.is_empty() {
+            let left = until.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() || !self.wait(left) {
+                return false;
+            }
+        }
+        true
     }
 
     /// Waits up to `timeout` for one load to finish: for settling a still
@@ -167,22 +194,22 @@ impl Drop for Pager {
 
 fn worker(shared: &Shared, tx: &Sender<(usize, Result<ChunkMesh, String>)>) {
     loop {
-        let (n, path) = {
+        let load = {
             let mut q = shared.queue.lock().expect("pager lock");
             loop {
                 if q.stop {
                     return;
                 }
                 if !q.paused
-                    && let Some((_, n, path)) = q.waiting.pop()
+                    && let Some(l) = q.waiting.pop()
                 {
-                    break (n, path);
+                    break l;
                 }
                 q = shared.wake.wait(q).expect("pager lock");
             }
         };
-        let r = load_chunk(&path).map_err(|e| format!("{e:#}"));
-        if tx.send((n, r)).is_err() {
+        let r = load_chunk_under(&load.path, load.parent.as_deref()).map_err(|e| format!("{e:#}"));
+        if tx.send((load.node, r)).is_err() {
             return;
         }
     }

@@ -1,6 +1,7 @@
 //! The GPU side (wgpu): one pipeline for shaded triangles, one for the
-//! wireframe overlay drawn as a line list of the chunk's edges (works on
-//! every adapter, lavapipe included, unlike POLYGON_MODE_LINE), each with
+//! wireframe drawn as a line list of the chunk's edges (works on every
+//! adapter, lavapipe included, unlike POLYGON_MODE_LINE; in wireframe mode
+//! the triangles fill with the background colour to hide lines), each with
 //! a "capture" variant that also writes camera-relative positions to an
 //! Rgba32Float target for the tests' screen-error and crack measurements.
 //!
@@ -21,22 +22,54 @@ const POSITION_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Per-draw uniform stride (the WebGPU minimum dynamic-offset alignment).
 const CHUNK_STRIDE: u64 = 256;
 
+/// What is drawn of the triangles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mode {
+    /// Lit, textured, fogged surfaces.
+    #[default]
+    Shaded,
+    /// The edges alone, hidden lines removed (the surfaces fill with the
+    /// background colour).
+    Wireframe,
+    /// The edges over the shaded surfaces.
+    Overlay,
+}
+
+impl Mode {
+    /// The next mode of the `w` key's cycle.
+    pub fn next(self) -> Self {
+        match self {
+            Mode::Shaded => Mode::Wireframe,
+            Mode::Wireframe => Mode::Overlay,
+            Mode::Overlay => Mode::Shaded,
+        }
+    }
+}
+
+/// Unit direction toward a sun at `azimuth_deg` (clockwise from north) and
+/// `elevation_deg` above the horizon, in the glTF frame (x east, y up, z south).
+pub fn sun_direction(azimuth_deg: f64, elevation_deg: f64) -> [f64; 3] {
+    let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    [a.sin() * e.cos(), e.sin(), -a.cos() * e.cos()]
+}
+
 /// Switches and colours of one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Look {
     /// exp² fog, with the clear colour as fog colour.
     pub fog: bool,
-    /// Diffuse sun (off: unlit base colour / texture).
+    /// Diffuse sun, one-sided: a face turned away from the sun gets the
+    /// ambient term only (off: unlit base colour / texture).
     pub lighting: bool,
-    /// Wireframe overlay.
-    pub wireframe: bool,
+    /// Shaded, wireframe, or both.
+    pub mode: Mode,
     /// Draw the skirts (off only to show the cracks they hide).
     pub skirts: bool,
     /// Clear colour, linear RGB 0–1; also the fog colour.
     pub clear: [f64; 3],
     /// Fog density ρ_fog, 1/m: f = exp(−(ρ_fog·d)²).
     pub fog_density: f64,
-    /// Direction toward the sun (need not be unit).
+    /// Direction toward the sun (need not be unit), e.g. [`sun_direction`].
     pub sun: [f64; 3],
 }
 
@@ -50,6 +83,8 @@ pub struct GpuChunk {
     all_indices: u32,
     edge_indices: u32,
     has_texture: bool,
+    has_normal_map: bool,
+    normal_uv1: bool,
     base_colour: [f32; 4],
     /// Node translation, world metres.
     pub translation: [f64; 3],
@@ -74,6 +109,7 @@ struct FrameUniform {
     sun: [f32; 4],
     fog: [f32; 4],
     flags: [f32; 4],
+    mode: [f32; 4],
 }
 
 #[repr(C)]
@@ -113,7 +149,8 @@ pub struct Renderer {
     tex_layout: wgpu::BindGroupLayout,
     bg0: wgpu::BindGroup,
     sampler: wgpu::Sampler,
-    white: wgpu::BindGroup,
+    white: wgpu::TextureView,
+    flat_normal: wgpu::TextureView,
     plain: Pipelines,
     capture: Pipelines,
     surface_format: wgpu::TextureFormat,
@@ -187,6 +224,16 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -215,7 +262,9 @@ impl Renderer {
             mipmap_filter: wgpu::MipmapFilterMode::Linear,
             ..Default::default()
         });
-        let white = texture_group(&device, &queue, &tex_layout, &sampler, 1, 1, &[vec![255u8; 4]]);
+        let white = texture_view(&device, &queue, 1, 1, &[vec![255u8; 4]]);
+        // (0, 0, 1) in the tangent frame: the vertex normal as it is.
+        let flat_normal = texture_view(&device, &queue, 1, 1, &[vec![128u8, 128, 255, 255]]);
         Ok(Renderer {
             device,
             queue,
@@ -228,6 +277,7 @@ impl Renderer {
             bg0,
             sampler,
             white,
+            flat_normal,
             plain,
             capture,
             surface_format,
@@ -249,24 +299,28 @@ impl Renderer {
         let pad = |v: &[u32]| if v.is_empty() { vec![0u32] } else { v.to_vec() };
         let indices = buf("indices", bytemuck::cast_slice(&pad(&mesh.indices)), wgpu::BufferUsages::INDEX);
         let edges = buf("edges", bytemuck::cast_slice(&pad(&mesh.edges)), wgpu::BufferUsages::INDEX);
-        let (textures, has_texture) = match &mesh.texture {
-            Some(m) => {
+        let view = |m: &Option<crate::scene::Mips>| {
+            m.as_ref().map(|m| {
                 let levels: Vec<Vec<u8>> = m.levels.iter().map(|l| l.2.clone()).collect();
-                (
-                    texture_group(
-                        &self.device,
-                        &self.queue,
-                        &self.tex_layout,
-                        &self.sampler,
-                        m.levels[0].0,
-                        m.levels[0].1,
-                        &levels,
-                    ),
-                    true,
-                )
-            }
-            None => (self.white.clone(), false),
+                texture_view(&self.device, &self.queue, m.levels[0].0, m.levels[0].1, &levels)
+            })
         };
+        let (colour, normal) = (view(&mesh.texture), view(&mesh.normal_map));
+        let textures = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("chunk textures"),
+            layout: &self.tex_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(colour.as_ref().unwrap_or(&self.white)),
+                },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(normal.as_ref().unwrap_or(&self.flat_normal)),
+                },
+            ],
+        });
         GpuChunk {
             vertices,
             indices,
@@ -275,7 +329,9 @@ impl Renderer {
             surface_indices: mesh.surface_indices,
             all_indices: mesh.indices.len() as u32,
             edge_indices: mesh.edges.len() as u32,
-            has_texture,
+            has_texture: colour.is_some(),
+            has_normal_map: normal.is_some(),
+            normal_uv1: mesh.normal_uv1,
             base_colour: mesh.base_colour,
             translation: mesh.translation,
             bytes: mesh.gpu_bytes(),
@@ -353,6 +409,7 @@ impl Renderer {
             sun: [(s[0] / sl) as f32, (s[1] / sl) as f32, (s[2] / sl) as f32, 0.0],
             fog: [look.clear[0] as f32, look.clear[1] as f32, look.clear[2] as f32, look.fog_density as f32],
             flags: [f(look.fog), f(look.lighting), 2e-5, 0.0],
+            mode: [f(look.mode == Mode::Wireframe), 0.0, 0.0, 0.0],
         };
         self.queue.write_buffer(&self.frame_buf, 0, bytemuck::bytes_of(&frame));
         if items.len() as u64 > self.chunk_cap {
@@ -366,7 +423,7 @@ impl Renderer {
             let u = ChunkUniform {
                 origin: [o[0], o[1], o[2], it.weight],
                 base_colour: it.chunk.base_colour,
-                opts: [f(it.chunk.has_texture), 0.0, 0.0, 0.0],
+                opts: [f(it.chunk.has_texture), f(it.chunk.has_normal_map), f(it.chunk.normal_uv1), 0.0],
             };
             let at = i * CHUNK_STRIDE as usize;
             bytes[at..at + std::mem::size_of::<ChunkUniform>()].copy_from_slice(bytemuck::bytes_of(&u));
@@ -415,7 +472,7 @@ impl Renderer {
                 let n = if look.skirts { g.all_indices } else { g.surface_indices };
                 pass.draw_indexed(0..n, 0, 0..1);
             }
-            if look.wireframe {
+            if look.mode != Mode::Shaded {
                 pass.set_pipeline(&pl.wire);
                 for (i, it) in items.iter().enumerate() {
                     let g = it.chunk;
@@ -489,15 +546,7 @@ impl Renderer {
     }
 }
 
-fn texture_group(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    layout: &wgpu::BindGroupLayout,
-    sampler: &wgpu::Sampler,
-    w: u32,
-    h: u32,
-    levels: &[Vec<u8>],
-) -> wgpu::BindGroup {
+fn texture_view(device: &wgpu::Device, queue: &wgpu::Queue, w: u32, h: u32, levels: &[Vec<u8>]) -> wgpu::TextureView {
     let tex = device.create_texture(&wgpu::TextureDescriptor {
         label: Some("chunk texture"),
         size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
@@ -523,15 +572,7 @@ fn texture_group(
             wgpu::Extent3d { width: mw, height: mh, depth_or_array_layers: 1 },
         );
     }
-    let view = tex.create_view(&wgpu::TextureViewDescriptor::default());
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("chunk texture"),
-        layout,
-        entries: &[
-            wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
-            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(sampler) },
-        ],
-    })
+    tex.create_view(&wgpu::TextureViewDescriptor::default())
 }
 
 fn chunk_buffer(device: &wgpu::Device, cap: u64) -> wgpu::Buffer {
@@ -573,7 +614,9 @@ fn pipelines(
     format: wgpu::TextureFormat,
     capture: bool,
 ) -> Pipelines {
-    let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32, 4 => Float32];
+    let attrs = wgpu::vertex_attr_array![
+        0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32, 4 => Float32, 5 => Float32x3, 6 => Float32x2
+    ];
     let vbuf = [Some(wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<Vertex>() as u64,
         step_mode: wgpu::VertexStepMode::Vertex,

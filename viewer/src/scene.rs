@@ -3,7 +3,14 @@
 //! mesh the GPU cache uploads. Only the output contract of DESIGN.md is
 //! assumed: chunk-local f32 positions plus an f64 node translation, y-up,
 //! primitives tagged `extras.role` "surface"/"skirt", one "parent" morph
-//! target with POSITION deltas, an optional baseColor texture.
+//! target with POSITION deltas, an optional baseColor texture and an
+//! optional tangent-space `normalTexture` (`--normal-map` tilesets).
+//!
+//! Normals morph with the shape: each vertex also carries its parent
+//! chunk's normal at its (x, z), interpolated inside the parent triangle it
+//! lies in ([`set_parent_normals`]). A child's triangles refine its
+//! parent's, so at morph weight 1 the interpolated normal equals the
+//! parent's at every pixel, and a split changes no shading.
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +28,11 @@ pub struct Tileset {
     pub grid: [u32; 2],
     /// `[s_x, s_z]`, metres.
     pub spacing_m: [f64; 2],
+    /// The largest τ the textures were sized for (`extras.terrachunk.tau_max_px`).
+    pub tau_max_px: Option<f64>,
+    /// The generated hillshade's sun, `[azimuth° clockwise from north,
+    /// elevation°]`, when the tileset has one.
+    pub sun_deg: Option<[f64; 2]>,
     /// World box of the whole terrain (glTF frame), min and max.
     pub bounds: ([f64; 3], [f64; 3]),
 }
@@ -44,16 +56,50 @@ impl Tileset {
                 hi[a] = hi[a].max(tree.nodes[r].max[a]);
             }
         }
-        Ok(Tileset { dir: dir.to_path_buf(), tree, grid, spacing_m, bounds: (lo, hi) })
+        let tau_max_px = ex["tau_max_px"].as_f64().filter(|t| t.is_finite() && *t > 0.0);
+        let hs = &ex["texture"]["hillshade"];
+        let sun_deg = hs["sun_azimuth_deg"].as_f64().zip(hs["sun_elevation_deg"].as_f64()).map(|(a, e)| [a, e]);
+        for n in &tree.nodes {
+            content_path(dir, &n.uri).with_context(|| path.display().to_string())?;
+        }
+        Ok(Tileset { dir: dir.to_path_buf(), tree, grid, spacing_m, tau_max_px, sun_deg, bounds: (lo, hi) })
     }
 
-    /// Path of a node's .glb.
+    /// Path of a node's .glb (checked to stay inside the tileset when opened).
     pub fn chunk_path(&self, node: usize) -> PathBuf {
         self.dir.join(&self.tree.nodes[node].uri)
     }
 }
 
-/// One vertex as the GPU sees it (40 bytes).
+/// The largest chunk file the viewer reads (a damaged index must not make
+/// it read a device or a huge file into memory).
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// A content URI as a path inside `dir`: relative, plain names only (no
+/// `..`, no root, no drive), so a tileset cannot point the viewer outside
+/// itself.
+fn content_path(dir: &Path, uri: &str) -> Result<PathBuf> {
+    let rel = Path::new(uri);
+    if uri.is_empty() || !rel.components().all(|c| matches!(c, std::path::Component::Normal(_))) {
+        bail!("content uri {uri:?} is not a plain path inside the tileset");
+    }
+    Ok(dir.join(rel))
+}
+
+/// Reads a chunk file: a regular file (not a link out of the tileset), at
+/// most [`MAX_CHUNK_BYTES`].
+fn read_chunk_file(path: &Path) -> Result<Vec<u8>> {
+    let meta = std::fs::symlink_metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    if !meta.file_type().is_file() {
+        bail!("{}: not a regular file", path.display());
+    }
+    if meta.len() > MAX_CHUNK_BYTES {
+        bail!("{}: {} bytes, more than a chunk may hold ({MAX_CHUNK_BYTES})", path.display(), meta.len());
+    }
+    std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))
+}
+
+/// One vertex as the GPU sees it (60 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Vertex {
@@ -67,6 +113,12 @@ pub struct Vertex {
     pub morph_dy: f32,
     /// 0 on the surface, 1 on a skirt.
     pub role: f32,
+    /// The parent surface's normal at this vertex's (x, z), not normalised
+    /// (linear inside each parent triangle, so the fragment's interpolation
+    /// matches the parent's); the vertex's own normal for a root or skirt.
+    pub parent_normal: [f32; 3],
+    /// TEXCOORD_1 (the normal map's, when its size differs from the colour's).
+    pub uv1: [f32; 2],
 }
 
 /// An RGBA8 image with its mip chain (level 0 first).
@@ -91,13 +143,20 @@ pub struct ChunkMesh {
     pub base_colour: [f32; 4],
     /// The baseColor texture, if any.
     pub texture: Option<Mips>,
+    /// The tangent-space normal map (T = +x, B = −z, N = +y), if any.
+    pub normal_map: Option<Mips>,
+    /// Whether the normal map reads TEXCOORD_1 (else TEXCOORD_0).
+    pub normal_uv1: bool,
 }
 
 impl ChunkMesh {
     /// Bytes this chunk takes on the GPU (vertex, index and line buffers and
     /// the texture with its mips): what the memory budget counts.
     pub fn gpu_bytes(&self) -> u64 {
-        let tex: usize = self.texture.as_ref().map_or(0, |m| m.levels.iter().map(|l| l.2.len()).sum());
+        let tex: usize = [&self.texture, &self.normal_map]
+            .iter()
+            .map(|t| t.as_ref().map_or(0, |m| m.levels.iter().map(|l| l.2.len()).sum::<usize>()))
+            .sum();
         (self.vertices.len() * std::mem::size_of::<Vertex>() + (self.indices.len() + self.edges.len()) * 4 + tex) as u64
     }
 
@@ -109,8 +168,92 @@ impl ChunkMesh {
 
 /// Reads and decodes one chunk file.
 pub fn load_chunk(path: &Path) -> Result<ChunkMesh> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let bytes = read_chunk_file(path)?;
     decode_chunk(&bytes).with_context(|| path.display().to_string())
+}
+
+/// Reads and decodes one chunk file and gives each surface vertex its
+/// parent's normal, from the parent's file (`parent`; none for a root).
+pub fn load_chunk_under(path: &Path, parent: Option<&Path>) -> Result<ChunkMesh> {
+    let mut mesh = load_chunk(path)?;
+    if let Some(p) = parent {
+        let pm = load_chunk(p)?;
+        set_parent_normals(&mut mesh, &pm);
+    }
+    Ok(mesh)
+}
+
+/// Sets each surface vertex's `parent_normal` to the parent surface's
+/// normal interpolated at its (x, z): the parent's vertex normals, linear
+/// inside the parent triangle the vertex lies in (the one it lies deepest
+/// in, where it is on an edge). Where no parent triangle is found (a hole
+/// in the parent) the vertex keeps its own normal.
+pub fn set_parent_normals(child: &mut ChunkMesh, parent: &ChunkMesh) {
+    let tris: Vec<[usize; 3]> = parent.indices[..parent.surface_indices as usize]
+        .chunks_exact(3)
+        .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
+        .collect();
+    if tris.is_empty() {
+        return;
+    }
+    // Parent vertices in the child's frame, f64: (x, z) and normal.
+    let off = [0, 2].map(|a| parent.translation[a] - child.translation[a]);
+    let xz: Vec<[f64; 2]> =
+        parent.vertices.iter().map(|v| [f64::from(v.pos[0]) + off[0], f64::from(v.pos[2]) + off[1]]).collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for t in &tris {
+        for &i in t {
+            for a in 0..2 {
+                lo[a] = lo[a].min(xz[i][a]);
+                hi[a] = hi[a].max(xz[i][a]);
+            }
+        }
+    }
+    // A bucket grid of about one triangle per cell.
+    let side = ((tris.len() as f64).sqrt().ceil() as usize).clamp(1, 256);
+    let cell = [0, 1].map(|a| ((hi[a] - lo[a]) / side as f64).max(1e-9));
+    let at = |p: [f64; 2], a: usize| (((p[a] - lo[a]) / cell[a]).floor().max(0.0) as usize).min(side - 1);
+    let mut buckets = vec![Vec::<u32>::new(); side * side];
+    for (k, t) in tris.iter().enumerate() {
+        let (mut b0, mut b1) = ([usize::MAX; 2], [0usize; 2]);
+        for &i in t {
+            for a in 0..2 {
+                b0[a] = b0[a].min(at(xz[i], a));
+                b1[a] = b1[a].max(at(xz[i], a));
+            }
+        }
+        for r in b0[1]..=b1[1] {
+            for c in b0[0]..=b1[0] {
+                buckets[r * side + c].push(k as u32);
+            }
+        }
+    }
+    for v in child.vertices.iter_mut().filter(|v| v.role == 0.0) {
+        let p = [f64::from(v.pos[0]), f64::from(v.pos[2])];
+        let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
+        for &k in &buckets[at(p, 1) * side + at(p, 0)] {
+            let t = tris[k as usize];
+            let (a, b, c) = (xz[t[0]], xz[t[1]], xz[t[2]]);
+            let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+            if det.abs() < 1e-18 {
+                continue;
+            }
+            let l1 = ((p[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (p[1] - a[1])) / det;
+            let l2 = ((b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1])) / det;
+            let l = [1.0 - l1 - l2, l1, l2];
+            let inside = l[0].min(l[1]).min(l[2]);
+            if best.is_none_or(|b| inside > b.0) {
+                best = Some((inside, l, t));
+            }
+        }
+        // Within f32 rounding of a triangle (a relative 1e-5 of its size).
+        if let Some((inside, l, t)) = best
+            && inside > -1e-5
+        {
+            let n = [0, 1, 2].map(|a| (0..3).map(|k| l[k] * f64::from(parent.vertices[t[k]].normal[a])).sum::<f64>());
+            v.parent_normal = n.map(|c| c as f32);
+        }
+    }
 }
 
 /// Decodes a chunk from .glb bytes. A `--compress quantize`, `meshopt` or
@@ -135,6 +278,8 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
         edges: Vec::new(),
         base_colour: [1.0; 4],
         texture: None,
+        normal_map: None,
+        normal_uv1: false,
     };
     let mut prims: Vec<(bool, gltf::Primitive)> = mesh
         .primitives()
@@ -151,14 +296,28 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
             reader.read_normals().map(|n| n.collect()).unwrap_or_else(|| vec![[0.0, 1.0, 0.0]; pos.len()]);
         let uv: Vec<[f32; 2]> =
             reader.read_tex_coords(0).map(|t| t.into_f32().collect()).unwrap_or_else(|| vec![[0.0; 2]; pos.len()]);
+        let uv1: Vec<[f32; 2]> =
+            reader.read_tex_coords(1).map(|t| t.into_f32().collect()).unwrap_or_else(|| uv.clone());
         let dy: Vec<f32> = match reader.read_morph_targets().next() {
             Some((Some(d), _, _)) => d.map(|v| v[1]).collect(),
             _ => vec![0.0; pos.len()],
         };
         let base = out.vertices.len() as u32;
         let role = if skirt { 1.0 } else { 0.0 };
-        for (((&pos, &normal), &uv), &morph_dy) in pos.iter().zip(&nrm).zip(&uv).zip(&dy) {
-            out.vertices.push(Vertex { pos, normal, uv, morph_dy, role });
+        if nrm.len() != pos.len() || uv.len() != pos.len() || uv1.len() != pos.len() || dy.len() != pos.len() {
+            bail!("a primitive's attributes differ in length from its {} positions", pos.len());
+        }
+        for i in 0..pos.len() {
+            let normal = nrm[i];
+            out.vertices.push(Vertex {
+                pos: pos[i],
+                normal,
+                uv: uv[i],
+                morph_dy: dy[i],
+                role,
+                parent_normal: normal,
+                uv1: uv1[i],
+            });
         }
         let idx: Vec<u32> = match reader.read_indices() {
             Some(i) => i.into_u32().collect(),
@@ -176,6 +335,11 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
             if let Some(info) = pbr.base_color_texture() {
                 let img = &images[info.texture().source().index()];
                 out.texture = Some(mips(rgba(img)?));
+            }
+            if let Some(info) = prim.material().normal_texture() {
+                let img = &images[info.texture().source().index()];
+                out.normal_map = Some(mips(rgba(img)?));
+                out.normal_uv1 = info.tex_coord() == 1;
             }
         }
     }

@@ -1,6 +1,7 @@
-// Terrain chunks: morph in the vertex shader, diffuse sun, texture, exp² fog.
-// Positions reach the GPU camera-relative: chunk-local f32 vertex + the
-// chunk origin minus the eye (computed in f64 on the CPU).
+// Terrain chunks: morph in the vertex shader (position and normal), one-sided
+// diffuse sun, texture, normal map, exp² fog. Positions reach the GPU
+// camera-relative: chunk-local f32 vertex + the chunk origin minus the eye
+// (computed in f64 on the CPU).
 
 struct Frame {
     view_proj: mat4x4<f32>,
@@ -10,13 +11,15 @@ struct Frame {
     fog: vec4<f32>,
     // x: fog on, y: lighting on, z: wireframe depth pull (clip z per w).
     flags: vec4<f32>,
+    // x: wireframe mode (surfaces fill with the fog colour, hiding lines).
+    mode: vec4<f32>,
 };
 
 struct Chunk {
     // xyz: chunk origin − eye (m), w: morph weight toward the parent.
     origin: vec4<f32>,
     base_colour: vec4<f32>,
-    // x: has texture.
+    // x: has texture, y: has normal map, z: the normal map reads TEXCOORD_1.
     opts: vec4<f32>,
 };
 
@@ -24,6 +27,7 @@ struct Chunk {
 @group(0) @binding(1) var<uniform> chunk: Chunk;
 @group(1) @binding(0) var tex: texture_2d<f32>;
 @group(1) @binding(1) var samp: sampler;
+@group(1) @binding(2) var normal_tex: texture_2d<f32>;
 
 struct VOut {
     @builtin(position) clip: vec4<f32>,
@@ -31,6 +35,7 @@ struct VOut {
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
     @location(3) role: f32,
+    @location(4) uv1: vec2<f32>,
 };
 
 fn place(pos: vec3<f32>, morph_dy: f32) -> vec3<f32> {
@@ -45,6 +50,8 @@ struct VIn {
     @location(2) uv: vec2<f32>,
     @location(3) morph_dy: f32,
     @location(4) role: f32,
+    @location(5) parent_normal: vec3<f32>,
+    @location(6) uv1: vec2<f32>,
 };
 
 fn vertex(v: VIn) -> VOut {
@@ -52,8 +59,11 @@ fn vertex(v: VIn) -> VOut {
     let p = place(v.pos, v.morph_dy);
     out.clip = frame.view_proj * vec4<f32>(p, 1.0);
     out.rel = p;
-    out.normal = v.normal;
+    // The parent's normal is linear inside each parent triangle, so at w = 1
+    // the interpolated normal is the parent's at every pixel: no shading pop.
+    out.normal = mix(v.normal, v.parent_normal, chunk.origin.w);
     out.uv = v.uv;
+    out.uv1 = v.uv1;
     out.role = v.role;
     return out;
 }
@@ -72,14 +82,25 @@ fn vs_wire(v: VIn) -> VOut {
 }
 
 fn shade(in: VOut) -> vec4<f32> {
+    if (frame.mode.x > 0.5) {
+        return vec4<f32>(frame.fog.rgb, 1.0);
+    }
     var c = chunk.base_colour.rgb;
+    // Sampled outside the branches: uniform control flow for the derivatives.
+    let albedo = textureSample(tex, samp, in.uv).rgb;
+    let nuv = select(in.uv, in.uv1, chunk.opts.z > 0.5);
+    let tn = textureSample(normal_tex, samp, nuv).rgb * 2.0 - 1.0;
     if (chunk.opts.x > 0.5) {
-        c = c * textureSample(tex, samp, in.uv).rgb;
+        c = c * albedo;
     }
     if (frame.flags.y > 0.5) {
-        let n = normalize(in.normal);
-        // Two-sided: skirts are seen from both sides.
-        let diffuse = abs(dot(n, frame.sun.xyz));
+        var n = normalize(in.normal);
+        if (chunk.opts.y > 0.5) {
+            // Tangent frame T = +x, B = north (−z), N = +y (the vertex normal is +y).
+            n = normalize(vec3<f32>(tn.x, tn.z, -tn.y));
+        }
+        // One-sided: a face turned away from the sun gets the ambient term only.
+        let diffuse = max(dot(n, frame.sun.xyz), 0.0);
         c = c * (0.3 + 0.8 * diffuse);
     }
     if (frame.flags.x > 0.5) {
