@@ -6,6 +6,7 @@ mod common;
 mod compress;
 mod dem;
 mod hard_cases;
+mod output_safety;
 mod pipeline;
 mod placement;
 mod properties;
