@@ -43,13 +43,15 @@ pub struct Config {
     /// Largest screen-space error, in pixels, the runtime may use; textures
     /// are sized from it (T_g ≤ δ/τ_max). Range: > 0. Default 2.
     pub tau_max_px: f64,
-    /// Worker threads; 0 = one per core. Default 0.
+    /// Worker threads; 0 = one per core. Range: 0..=[`MAX_THREADS`]. Default 0.
     pub threads: usize,
     /// Multiplier applied to every height (e.g. 0.3048 for feet). Range:
     /// finite, ≠ 0. Default 1.
     pub vertical_scale: f64,
-    /// Override the ground spacing, metres `[s_x, s_z]` (> 0). Default: the
-    /// file's own (1 m for files without a georeference).
+    /// Override the ground spacing, metres `[s_x, s_z]`. Range:
+    /// [`SPACING_M`] on each axis (the grid's extent is checked too, once
+    /// its size is known: `pipeline::MAX_EXTENT_M`). Default: the file's own
+    /// (1 m for files without a georeference).
     pub spacing_m: Option<[f64; 2]>,
     /// Widest a deepest-level chunk may be, in grid cells. Range: 2..=4096.
     /// Up to [`dense_leaf_cells`]`(max_chunk_vertices)` always works (250
@@ -144,7 +146,7 @@ pub struct Config {
 }
 
 /// Which mesher makes the chunks ([`Config::mesher`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Mesher {
     /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
@@ -166,6 +168,16 @@ pub enum Mesher {
 /// against 428 k) and 3.3 times the file bytes per frame (README,
 /// "Settings"). Larger limits stay a setting.
 pub const MAX_CHUNK_VERTICES: u32 = 65_535;
+
+/// The most worker threads a build may ask for: more than any machine's
+/// cores, and few enough that their stacks fit an ordinary address space.
+pub const MAX_THREADS: usize = 1024;
+
+/// The range of `spacing_m`, metres: from a millimetre (finer than any
+/// terrain survey) to 100 km (coarser than any global DEM), so that chunk
+/// extents stay where f32 chunk-local positions carry them and geometric
+/// errors and transforms stay finite.
+pub const SPACING_M: std::ops::RangeInclusive<f64> = 1e-3..=1e5;
 
 /// The widest leaf, in cells, that holds every sample of its footprint and
 /// the cut points on its four borders (up to about 10 per border cell, 2.5
@@ -190,7 +202,7 @@ pub const NORMAL_BITS_V1: u32 = 8;
 
 /// How a chunk's vertex data is stored. Measured figures are in README,
 /// "Compression".
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Compress {
     /// f32 positions, normals, morph deltas and texture coordinates: the
@@ -211,6 +223,7 @@ pub enum Compress {
     /// octahedral lattice points, and a leaner JSON: the smallest output,
     /// for readers that know KHR_meshopt_compression (CesiumJS from 1.143).
     #[serde(rename = "meshopt-v1")]
+    #[value(name = "meshopt-v1")]
     MeshoptV1,
 }
 
@@ -232,7 +245,7 @@ impl Compress {
 
 /// Which levels the mesher thins after greedy insertion
 /// ([`Config::thin`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Thin {
     /// No level.
@@ -275,7 +288,9 @@ pub enum VertexCache {
 }
 
 /// How texture tiles are encoded.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, serde::Serialize, schemars::JsonSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, serde::Serialize, schemars::JsonSchema, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum TextureFormat {
     /// Lossless: neighbouring tiles' border texels are equal exactly.
@@ -387,10 +402,13 @@ impl Config {
         if !(self.vertical_scale.is_finite() && self.vertical_scale != 0.0) {
             return bad("vertical_scale", self.vertical_scale.to_string(), "must be finite and not 0");
         }
+        if self.threads > MAX_THREADS {
+            return bad("threads", self.threads.to_string(), "must be within 0..=1024 (0: one per core)");
+        }
         if let Some(s) = self.spacing_m
-            && !s.iter().all(|v| v.is_finite() && *v > 0.0)
+            && !s.iter().all(|v| SPACING_M.contains(v))
         {
-            return bad("spacing_m", format!("{s:?}"), "must be finite metres > 0");
+            return bad("spacing_m", format!("{s:?}"), "must be within 0.001..=100000 metres on each axis");
         }
         if let Some(c) = self.leaf_cells
             && !(2..=4096).contains(&c)

@@ -24,5 +24,6 @@ mod progress;
 pub mod quadtree;
 #[cfg(test)]
 mod test_rng;
+pub mod text;
 pub mod texture;
 pub mod verify;

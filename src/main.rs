@@ -4,11 +4,10 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
 use terrachunk::config::{Compress, Config, Mesher, TextureFormat, Thin};
-use terrachunk::pipeline::{BuildOptions, OverDelta, Report, build};
+use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify_with_progress;
 
@@ -54,7 +53,7 @@ enum Command {
         texture: Option<String>,
         /// How texture tiles are stored in the .glb.
         #[arg(long, value_enum)]
-        texture_format: Option<FormatArg>,
+        texture_format: Option<TextureFormat>,
         /// JPEG quality, 1..=100.
         #[arg(long)]
         jpeg_quality: Option<u8>,
@@ -84,11 +83,11 @@ enum Command {
         /// (the deepest), `all` (fewer triangles, slower), or `none`
         /// [default: leaves].
         #[arg(long, value_enum)]
-        thin: Option<ThinArg>,
+        thin: Option<Thin>,
         /// Which mesher makes the chunks: `tin` (greedy insertion) or
         /// `rtin` (right-triangle bintree, no slivers) [default: tin].
         #[arg(long, value_enum)]
-        mesher: Option<MesherArg>,
+        mesher: Option<Mesher>,
         /// Build every chunk to the deepest level, even below one that already
         /// meets the error (to measure what the error-bounded tree saves).
         #[arg(long)]
@@ -99,7 +98,7 @@ enum Command {
         /// plus KHR_meshopt_compression with meshoptimizer's v1 vertex codec
         /// (`meshopt-v1`, the smallest; CesiumJS ≥ 1.143) [default: none].
         #[arg(long, value_enum)]
-        compress: Option<CompressArg>,
+        compress: Option<Compress>,
         /// Replace an existing output directory.
         #[arg(long)]
         force: bool,
@@ -192,34 +191,6 @@ struct BenchArgs {
     savings: bool,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum CompressArg {
-    None,
-    Quantize,
-    Meshopt,
-    #[value(name = "meshopt-v1")]
-    MeshoptV1,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum MesherArg {
-    Tin,
-    Rtin,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum ThinArg {
-    None,
-    Leaves,
-    All,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum FormatArg {
-    Png,
-    Jpeg,
-}
-
 fn parse_spacing(s: &str) -> Result<[f64; 2], String> {
     let v: Vec<f64> =
         s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
@@ -293,10 +264,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 cfg.spacing_m = spacing;
             }
             if let Some(f) = texture_format {
-                cfg.texture_format = match f {
-                    FormatArg::Png => TextureFormat::Png,
-                    FormatArg::Jpeg => TextureFormat::Jpeg,
-                };
+                cfg.texture_format = f;
             }
             if let Some(v) = jpeg_quality {
                 cfg.jpeg_quality = v;
@@ -315,26 +283,20 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 cfg.max_chunk_vertices = v;
             }
             if let Some(t) = thin {
-                cfg.thin = match t {
-                    ThinArg::None => Thin::None,
-                    ThinArg::Leaves => Thin::Leaves,
-                    ThinArg::All => Thin::All,
-                };
+                cfg.thin = t;
             }
             if let Some(m) = mesher {
-                cfg.mesher = match m {
-                    MesherArg::Tin => Mesher::Tin,
-                    MesherArg::Rtin => Mesher::Rtin,
-                };
+                cfg.mesher = m;
             }
             cfg.complete_tree |= complete_tree;
             if let Some(c) = compress {
-                cfg.compress = match c {
-                    CompressArg::None => Compress::None,
-                    CompressArg::Quantize => Compress::Quantize,
-                    CompressArg::Meshopt => Compress::Meshopt,
-                    CompressArg::MeshoptV1 => Compress::MeshoptV1,
-                };
+                cfg.compress = c;
+            }
+            if let Some(p) = &report
+                && let Err(e) = Report::check_path(p, &dem)
+            {
+                eprintln!("error: {e}");
+                return Ok(ExitCode::from(2));
             }
             let opts = BuildOptions {
                 inputs: dem,
@@ -346,10 +308,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             match build(&opts) {
                 Ok(r) => {
-                    print_summary(&r, &out, opts.config.max_chunk_vertices);
-                    if let Some(p) = report {
-                        let json = serde_json::to_vec_pretty(&r)?;
-                        std::fs::write(&p, json).with_context(|| format!("{}: cannot write report", p.display()))?;
+                    print!("{}", r.summary(&out, opts.config.max_chunk_vertices));
+                    if let Some(warning) = r.over_delta_warning() {
+                        eprintln!("{warning}");
+                    }
+                    if let Some(p) = report
+                        && let Err(e) = r.write(&p)
+                    {
+                        // The tileset is in place: not exit 2, which says nothing was written.
+                        eprintln!("error: {e} (the tileset itself is complete in {})", out.display());
+                        return Ok(ExitCode::from(1));
                     }
                     Ok(ExitCode::SUCCESS)
                 }
@@ -368,39 +336,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     return Ok(ExitCode::from(2));
                 }
             };
-            println!("{:>5} {:>7} {:>10} {:>12} {:>12}", "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)");
-            for (l, c) in &r.levels {
-                println!(
-                    "{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}",
-                    c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m
-                );
-            }
-            println!("{} shared borders compared", r.borders_checked);
-            if let Some(t) = &r.texture {
-                println!(
-                    "{:>5} {:>7} {:>10} {:>10} {:>21} {:>18}",
-                    "level", "chunks", "T_g (m)", "δ/τ (m)", "over δ/τ: at source", "capped (stated)"
-                );
-                for (l, c) in &t.levels {
-                    println!(
-                        "{l:>5} {:>7} {:>10.4} {:>10.4} {:>21} {:>18}",
-                        c.chunks, c.texel_m, c.bound_m, c.at_source, c.capped
-                    );
-                }
-                println!(
-                    "{} texture seams compared, border texels differ by up to {} (allowed {}), RMS {:.2} (allowed {:.2})",
-                    t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
-                );
-            }
-            if r.failures.is_empty() {
-                println!("OK");
-                Ok(ExitCode::SUCCESS)
-            } else {
-                for f in &r.failures {
-                    println!("FAIL {f}");
-                }
-                Ok(ExitCode::from(1))
-            }
+            print!("{r}");
+            Ok(if r.failures.is_empty() { ExitCode::SUCCESS } else { ExitCode::from(1) })
         }
         Command::View { args } => view(&args),
         Command::Inspect { glb } => match terrachunk::verify::inspect(&glb) {
@@ -413,13 +350,21 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::from(2))
             }
         },
-        Command::Bench(args) => match run_bench(args) {
-            Ok(()) => Ok(ExitCode::SUCCESS),
-            Err(e) => {
-                eprintln!("error: {e}");
-                Ok(ExitCode::from(e.exit_code() as u8))
+        Command::Bench(args) => {
+            let out = args.out.clone();
+            let made = !out.exists();
+            match run_bench(args) {
+                Ok(()) => Ok(ExitCode::SUCCESS),
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    if made {
+                        // Only an empty folder goes: whatever was written stays.
+                        let _ = std::fs::remove_dir(&out);
+                    }
+                    Ok(ExitCode::from(e.exit_code() as u8))
+                }
             }
-        },
+        }
     }
 }
 
@@ -519,170 +464,5 @@ fn print_bench(rows: &[bench::table::Row]) {
             r.measured_rms_error_m.unwrap_or(f64::NAN),
             r.total_seconds().unwrap_or(f64::NAN)
         );
-    }
-}
-
-fn print_summary(r: &Report, out: &std::path::Path, max_chunk_vertices: u32) {
-    println!(
-        "{} × {} samples ({} valid), spacing {:.3} × {:.3} m",
-        r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]
-    );
-    println!(
-        "{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}",
-        "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)"
-    );
-    for l in &r.levels {
-        println!(
-            "{:>5} {:>10.4} {:>7} {:>7} {:>11} {:>9} {:>11.4}",
-            l.level, l.delta_m, l.chunks, l.leaves, l.triangles, l.skirt_triangles, l.max_error_m
-        );
-    }
-    if r.levels.iter().any(|l| l.texture.is_some()) {
-        println!(
-            "{:>5} {:>10} {:>10} {:>11} {:>13} {:>21} {:>13} {:>14}",
-            "level", "T_g (m)", "δ/τ (m)", "largest", "texels", "sized by b/s/cap", "texture B", "geometry B"
-        );
-        for l in &r.levels {
-            if let Some(t) = &l.texture {
-                println!(
-                    "{:>5} {:>10.4} {:>10.4} {:>11} {:>13} {:>21} {:>13} {:>14}",
-                    l.level,
-                    t.texel_m,
-                    t.bound_m,
-                    format!("{}×{}", t.largest[0], t.largest[1]),
-                    t.texels,
-                    format!("{}/{}/{}", t.limited_by_bound, t.limited_by_source, t.limited_by_cap),
-                    t.texture_bytes,
-                    l.bytes - t.texture_bytes
-                );
-            }
-        }
-        for l in &r.levels {
-            if let Some(t) = l.texture.as_ref().filter(|t| t.over_bound > 0) {
-                let why = if t.limited_by_cap > 0 {
-                    "max_texture_px caps them (raise it to keep the bound)"
-                } else {
-                    "the texture source is coarser than that (no tile is finer than its source)"
-                };
-                println!(
-                    "level {}: {} chunk(s) have T_g up to {:.4} m > δ/τ_max = {:.4} m: {why}",
-                    l.level, t.over_bound, t.texel_m, t.bound_m
-                );
-            }
-        }
-    }
-    let s = &r.seconds;
-    println!("{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display());
-    println!(
-        "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, {}texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
-        s.load,
-        s.plan,
-        s.texture_source,
-        s.chunks,
-        r.thread_seconds.mesh,
-        r.thread_seconds.skirt_morph,
-        if r.thread_seconds.check > 0.0 {
-            format!("as-written check {:.2}, ", r.thread_seconds.check)
-        } else {
-            String::new()
-        },
-        r.thread_seconds.texture,
-        r.thread_seconds.write,
-        s.index,
-        s.total,
-        r.threads
-    );
-    let chunks: usize = r.levels.iter().map(|l| l.chunks).sum();
-    let vertices: usize = r.levels.iter().map(|l| l.vertices).sum();
-    if chunks > 0 {
-        println!(
-            "leaves up to {} cells wide{}; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
-            r.leaf_width_cells,
-            if r.leaf_width_cells < r.leaf_cells { format!(" (leaf_cells {})", r.leaf_cells) } else { String::new() },
-            vertices as f64 / chunks as f64,
-            r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
-        );
-    }
-    if r.roots.0 > 1 {
-        let written = r.levels.first().map_or(0, |l| l.chunks);
-        println!(
-            "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}",
-            r.roots.1,
-            if written < r.roots.0 {
-                format!(" ({} more footprints hold no valid sample)", r.roots.0 - written)
-            } else {
-                String::new()
-            }
-        );
-    }
-    if r.refine_levels > 0 {
-        println!(
-            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than {} vertices (max_chunk_vertices; {})",
-            r.refine_levels,
-            max_chunk_vertices,
-            match (r.refine_estimated, r.refine_levels - r.refine_estimated) {
-                (_, 0) => "estimated from the data, not built".to_string(),
-                (0, _) => format!("found by attempts that took {:.1} s", r.discarded_s),
-                (e, _) =>
-                    format!("{e} estimated from the data, the rest found by attempts that took {:.1} s", r.discarded_s),
-            }
-        );
-    }
-    if r.remeshed_for_cut_points > 0 {
-        println!(
-            "{} chunk(s) meshed again with a wider margin next to cut points, so that rounding them to the u16 grid keeps δ",
-            r.remeshed_for_cut_points
-        );
-    }
-    if !r.over_delta_as_written.is_empty() {
-        eprintln!(
-            "warning: {} chunk(s) miss δ as written even so (cut points rounded to the u16 grid on steep ground; \
-             `verify` reports them, --compress none avoids it): {}",
-            r.over_delta_as_written.len(),
-            worst_over_delta(&r.over_delta_as_written, 10)
-        );
-    }
-    if let Some(b) = r.peak_rss_bytes {
-        println!("peak memory: {:.1} MB", b as f64 / 1e6);
-    }
-}
-
-/// The `shown` chunks furthest over their δ, each with its error and by how
-/// much it misses (a miss of 10⁻⁹ m printed as "1.000 m" said nothing), and
-/// how many more the report lists: California once warned of 865 chunks on
-/// one line.
-fn worst_over_delta(over: &[OverDelta], shown: usize) -> String {
-    let mut by_excess: Vec<&OverDelta> = over.iter().collect();
-    by_excess.sort_by(|a, b| {
-        (b.error_m - b.delta_m).total_cmp(&(a.error_m - a.delta_m)).then_with(|| a.chunk.cmp(&b.chunk))
-    });
-    let mut list: Vec<String> = by_excess
-        .iter()
-        .take(shown)
-        .map(|o| format!("{} ({:.4} m, {:.1e} m over δ {} m)", o.chunk, o.error_m, o.error_m - o.delta_m, o.delta_m))
-        .collect();
-    if over.len() > shown {
-        list.push(format!("and {} more (`--report FILE` lists them all)", over.len() - shown));
-    }
-    list.join(", ")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_over_delta_warning_names_the_worst_chunks_and_counts_the_rest() {
-        let over: Vec<OverDelta> =
-            [("2/0/0", 1.000_000_001, 1.0), ("0/0/0", 4.5, 4.0), ("1/3/1", 2.25, 2.0), ("2/5/7", 1.1, 1.0)]
-                .map(|(chunk, error_m, delta_m)| OverDelta { chunk: chunk.into(), error_m, delta_m })
-                .into();
-        let text = worst_over_delta(&over, 2);
-        assert_eq!(
-            text,
-            "0/0/0 (4.5000 m, 5.0e-1 m over δ 4 m), 1/3/1 (2.2500 m, 2.5e-1 m over δ 2 m), and 2 more (`--report FILE` lists them all)"
-        );
-        let all = worst_over_delta(&over, 10);
-        assert!(all.ends_with("2/0/0 (1.0000 m, 1.0e-9 m over δ 1 m)"), "{all}");
     }
 }

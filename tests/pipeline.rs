@@ -725,22 +725,6 @@ fn bad_input_exits_2_names_the_problem_and_writes_nothing() {
 }
 
 #[test]
-fn existing_output_needs_force() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("out");
-    std::fs::create_dir(&out).unwrap();
-    std::fs::write(out.join("keep.txt"), "mine").unwrap();
-    let g = fixture("west_bijou_gully_3m.asc");
-    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
-    assert!(out.join("keep.txt").exists());
-    let o = cli(&["build", g.to_str().unwrap(), "-o", out.to_str().unwrap(), "--force"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(!out.join("keep.txt").exists() && out.join("tileset.json").exists());
-}
-
-#[test]
 fn summary_report_and_inspect_tell_the_user_what_was_built() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");

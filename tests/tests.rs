@@ -8,6 +8,7 @@ mod dem;
 mod goldens;
 mod hard_cases;
 mod loader_limits;
+mod output_safety;
 mod pipeline;
 mod placement;
 mod properties;

@@ -345,6 +345,8 @@ fn build_once(
     outputs: &mut Outputs,
 ) -> Result<ChildReport, BenchError> {
     let dir = outputs.fresh();
+    // The report's folder exists before the build, which checks it first.
+    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io { path: dir.clone(), source })?;
     let out = dir.join("tileset");
     let report = dir.join("report.json");
     let mut cmd = Command::new(exe);

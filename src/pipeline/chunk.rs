@@ -1,0 +1,182 @@
+//! The per-chunk path, read top to bottom: mesh → skirt → morph (what the
+//! children need, [`Run::shape`]) → texture → encode (what is left to
+//! write, [`Run::finish`]). The scheduler ([`super::schedule`]) decides
+//! when each runs and retries a quantized chunk at other cut shares;
+//! nothing here loops.
+
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use super::BuildError;
+use super::schedule::{BuiltChunk, LevelFigures, Meshed, Run, Timers, TileFigures, few_chunks};
+use crate::chunk::{Chunk, Part};
+use crate::mesh::decimate::{ChunkSpec, DividingLines, Grid, build_chunk};
+use crate::mesh::skirt::build_skirt;
+use crate::mesh::{ChunkMesh, MeshVertex, dem_normal};
+use crate::output::gltf::encode_glb;
+use crate::output::tileset::{TileRecord, tile_uri};
+use crate::quadtree::ChunkKey;
+
+impl Run<'_> {
+    /// Meshes chunk `key` within its δ from its parent's mesh (`share` of δ
+    /// next to cut points, for quantized output), then adds its skirts and
+    /// morph targets: the mesh its children start from, and the chunk.
+    pub(super) fn shape(
+        &self,
+        key: ChunkKey,
+        parent: Option<&ChunkMesh>,
+        share: f64,
+    ) -> Result<(ChunkMesh, Chunk), BuildError> {
+        let t = Instant::now();
+        let mesh = self.mesh(key, parent, share)?;
+        Timers::add(&self.timers.mesh, t);
+        let t = Instant::now();
+        // Skirts reach below any neighbour of level ≥ L − 1 in any morph state.
+        let margin = self.tree.delta_m[(key.level as usize).saturating_sub(2)];
+        let chunk = Chunk { delta_m: self.tree.delta_m[key.level as usize], ..assemble(self.grid, self.hf.spacing_m, &mesh, margin) };
+        Timers::add(&self.timers.skirt_morph, t);
+        Ok((mesh, chunk))
+    }
+
+    /// The TIN of chunk `key`, refused if the mesher left a sample beyond δ.
+    fn mesh(&self, key: ChunkKey, parent: Option<&ChunkMesh>, share: f64) -> Result<ChunkMesh, BuildError> {
+        let (tree, level) = (self.tree, key.level);
+        let few = few_chunks(tree, level);
+        let spec = ChunkSpec {
+            key,
+            footprint: tree.footprint(key),
+            delta_m: tree.delta_m[level as usize],
+            parent,
+            keep_parent_edges: true,
+            max_vertices: self.opts.config.max_chunk_vertices as usize,
+            dividing_lines: match (tree.splits(level), few && self.lone_parts) {
+                (true, _) => DividingLines::Children,
+                (false, true) => DividingLines::Parts,
+                (false, false) => DividingLines::None,
+            },
+            split_insertion: few,
+            cancel: Some(&self.failed),
+            cut_share: share,
+            cut_lattice: self.ctx.quantization.as_ref().map(|q| q.shift[level as usize]),
+            // Quantized output: each triangle is meshed to δ less what
+            // its corners' heights round by (output::compress).
+            height_step: self.ctx.quantization.as_ref().map(|q| q.step_y_m),
+            thin: self.opts.config.thin.level(!tree.splits(level)),
+        };
+        let mesh = match self.rtin {
+            Some(r) => r.build_chunk(self.grid, self.tree, key, spec.max_vertices, spec.cancel)?,
+            None => build_chunk(self.grid, &spec)?,
+        };
+        if mesh.max_error_m > spec.delta_m {
+            return Err(BuildError::MissedDelta {
+                level: key.level,
+                x: key.x,
+                y: key.y,
+                error_m: mesh.max_error_m,
+                delta_m: spec.delta_m,
+            });
+        }
+        Ok(mesh)
+    }
+
+    /// Textures, encodes and writes a shaped chunk.
+    pub(super) fn finish(&self, meshed: Meshed) -> Result<BuiltChunk, BuildError> {
+        let Meshed { chunk, remeshed, over_delta_m, max_error_m, leaf } = meshed;
+        let (key, delta) = (chunk.key, chunk.delta_m);
+        let timers = &self.timers;
+        let t = Instant::now();
+        let texture = self.texturer.map(|tx| tx.tile(key)).transpose()?;
+        Timers::add(&timers.texture, t);
+        let t = Instant::now();
+        let glb = encode_glb(&chunk, texture.as_ref(), &self.ctx)?;
+        let path = self.tmp.join(tile_uri(key));
+        std::fs::create_dir_all(path.parent().expect("tile path has a parent"))
+            .and_then(|_| std::fs::write(&path, &glb))
+            .map_err(|source| BuildError::Io { path: path.clone(), source })?;
+        self.bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
+        Timers::add(&timers.write, t);
+        self.bar.inc(1);
+        let (min, max) = bounds(&chunk);
+        let figures = LevelFigures {
+            triangles: chunk.surface.triangle_count(),
+            skirt_triangles: chunk.skirt.triangle_count(),
+            vertices: chunk.surface.positions.len(),
+            bytes: glb.len() as u64,
+            texture: texture.map(|t| TileFigures {
+                texel_m: t.colour.texel_size_m(),
+                texels: t.colour.texels,
+                limit: t.colour.limit[0].max(t.colour.limit[1]),
+                bytes: (t.colour.bytes.len() + t.normal.as_ref().map_or(0, |n| n.bytes.len())) as u64,
+            }),
+        };
+        Ok(BuiltChunk {
+            record: TileRecord { key, min, max, delta_m: delta },
+            figures,
+            max_error_m,
+            remeshed,
+            over_delta_m,
+            leaf,
+        })
+    }
+}
+
+/// A chunk from its TIN: the written triangles' vertices as the surface
+/// (world f64, DEM normals), each with its morph target (the parent
+/// surface's height, as a y delta), and skirts hanging from its borders,
+/// whose top vertices carry the surface's morph deltas. Public for the
+/// `.glb` micro-benchmark (`benches/stages.rs`).
+pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
+    let (used, indices) = written(mesh);
+    let mut surface = Part {
+        positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
+        normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),
+        morph_dy: Vec::new(),
+        indices,
+    };
+    let parent_h: Vec<f64> = used.iter().map(|v| v.ph).collect();
+    surface.morph_dy = used.iter().zip(&parent_h).map(|(v, p)| p - v.h).collect();
+    let grid_xz: Vec<(f64, f64)> = used.iter().map(|v| (v.x, v.z)).collect();
+    let skirt = build_skirt(grid, mesh.footprint, &surface, &grid_xz, &parent_h, margin_m);
+    Chunk {
+        key: mesh.key,
+        footprint: mesh.footprint,
+        delta_m: mesh.delta_m,
+        max_error_m: mesh.max_error_m,
+        surface,
+        surface_grid: grid_xz,
+        skirt,
+    }
+}
+
+/// The vertices of `mesh`'s written triangles, in the order they are first
+/// used, and the triangles' indices into them.
+fn written(mesh: &ChunkMesh) -> (Vec<MeshVertex>, Vec<u32>) {
+    let mut remap = vec![u32::MAX; mesh.vertices.len()];
+    let mut used = Vec::new();
+    let mut indices = Vec::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !mesh.kept[t] {
+            continue;
+        }
+        for &v in tri {
+            if remap[v as usize] == u32::MAX {
+                remap[v as usize] = used.len() as u32;
+                used.push(mesh.vertices[v as usize]);
+            }
+            indices.push(remap[v as usize]);
+        }
+    }
+    (used, indices)
+}
+
+fn bounds(c: &Chunk) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in c.surface.positions.iter().chain(&c.skirt.positions) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}

@@ -1,0 +1,261 @@
+//! The orchestrator: load → plan → mesh → skirt → morph → texture → write,
+//! one call each, with plain data between them (DESIGN.md, "The pipeline").
+//!
+//! [`build`] lists the stages; [`schedule`] runs the per-chunk path
+//! ([`chunk`]) over the tree, top-down and in parallel (a chunk needs its
+//! parent's mesh, siblings are independent), with the retries that restart
+//! a chunk or the whole tree; [`out_dir`] claims the output folder and puts
+//! the finished tileset in place; [`report`] is what a build tells its user.
+//! Chunks are collected in key order, so output does not depend on the
+//! thread count.
+
+mod chunk;
+pub mod out_dir;
+mod report;
+mod schedule;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::config::{Config, ConfigError};
+use crate::dem::{self, DemError, LoadOptions};
+use crate::geodesy::Placement;
+use crate::heightfield::Heightfield;
+use crate::mesh::MeshError;
+use crate::output::compress::QuantizeError;
+use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json};
+use crate::quadtree::ChunkTree;
+use crate::texture::{TextureError, TextureSource};
+
+pub use chunk::assemble;
+pub use out_dir::{OutDir, OutDirError};
+pub use report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Report, StageTimes, Summary, peak_rss};
+
+/// What `build` needs.
+#[derive(Clone, Debug)]
+pub struct BuildOptions {
+    /// DEM file(s); several `.hgt` tiles (or one folder of them) make a mosaic.
+    pub inputs: Vec<PathBuf>,
+    /// Output directory (the tileset root).
+    pub out: PathBuf,
+    /// Replace an existing output directory.
+    pub force: bool,
+    /// Validated settings.
+    pub config: Config,
+    /// Where the chunks' colour comes from (default: generated from the DEM).
+    pub texture: TextureSource,
+    /// Draw a progress bar (when stderr is a terminal).
+    pub progress: bool,
+}
+
+/// Why a build failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The DEM could not be used.
+    #[error(transparent)]
+    Dem(#[from] DemError),
+    /// A setting is out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The output directory exists and `--force` was not given.
+    #[error("{0}: already exists (use --force to replace a tileset terrachunk wrote)")]
+    OutputExists(PathBuf),
+    /// A chunk could not meet its δ within `max_chunk_vertices` even with many refine levels.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The texture image could not be used, or a tile could not be encoded.
+    #[error(transparent)]
+    Texture(#[from] TextureError),
+    /// The mesher returned a chunk farther from a sample than its δ: a bug,
+    /// refused rather than written as a tileset that breaks its promise.
+    #[error(
+        "chunk {level}/{x}/{y}: the mesher left a sample {error_m} m from the surface, beyond the chunk's \
+         δ {delta_m} m (a terrachunk bug: please report it with the DEM and settings)"
+    )]
+    MissedDelta {
+        /// Level.
+        level: u32,
+        /// Column.
+        x: u32,
+        /// Row.
+        y: u32,
+        /// What the mesher measured, metres.
+        error_m: f64,
+        /// δ(L), metres.
+        delta_m: f64,
+    },
+    /// A `leaf_cells` setting above [`dense_leaf_cells`] left a leaf that
+    /// cannot meet its δ within `max_chunk_vertices` (refine levels keep
+    /// the leaf's footprint, so they cannot help).
+    #[error(
+        "leaf_cells = {leaf_cells}: {source}; leaves of at most {dense} cells always fit \
+         (or leave leaf_cells unset to choose from the data)"
+    )]
+    LeafTooWide {
+        /// The setting.
+        leaf_cells: u32,
+        /// The widest leaf that always fits, [`dense_leaf_cells`].
+        dense: u32,
+        /// The chunk that did not fit.
+        source: MeshError,
+    },
+    /// Vertex data cannot be quantized as `compress` asks.
+    #[error(transparent)]
+    Quantize(#[from] QuantizeError),
+    /// The output folder cannot be used as asked (see [`out_dir`]).
+    #[error(transparent)]
+    Output(OutDirError),
+    /// The worker threads could not be started.
+    #[error("cannot start {threads} worker threads: {why}; use fewer (--threads)")]
+    ThreadPool {
+        /// How many were asked for.
+        threads: usize,
+        /// What the system said.
+        why: String,
+    },
+    /// The grid spans more than [`MAX_EXTENT_M`] on an axis.
+    #[error(
+        "{files}: the grid spans {} × {} m at a spacing of {} × {} m, more than the Earth's \
+         circumference ({MAX_EXTENT_M} m): check the spacing (--spacing, or the file's georeference)",
+        extent_m[0], extent_m[1], spacing_m[0], spacing_m[1]
+    )]
+    Extent {
+        /// The input file(s).
+        files: String,
+        /// West-east and north-south extent, metres.
+        extent_m: [f64; 2],
+        /// The spacing in use, metres.
+        spacing_m: [f64; 2],
+    },
+    /// Writing failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+impl BuildError {
+    /// Process exit code: 2 for bad input or settings, 1 otherwise.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
+            BuildError::Output(e) => e.exit_code(),
+            BuildError::ThreadPool { .. } | BuildError::Extent { .. } => 2,
+            BuildError::LeafTooWide { .. } => 2,
+            BuildError::Texture(TextureError::Encode { .. }) => 1,
+            BuildError::Texture(_) => 2,
+            BuildError::Quantize(QuantizeError::Range { .. }) => 1,
+            BuildError::Quantize(_) => 2,
+            BuildError::Mesh(_) | BuildError::MissedDelta { .. } | BuildError::Io { .. } => 1,
+        }
+    }
+}
+
+impl From<OutDirError> for BuildError {
+    fn from(e: OutDirError) -> Self {
+        match e {
+            OutDirError::Exists(path) => BuildError::OutputExists(path),
+            e => BuildError::Output(e),
+        }
+    }
+}
+
+/// Runs the whole pipeline: claim the output folder, load, plan and build
+/// every chunk into a temporary folder beside it, write the index, and put
+/// the folder in place ([`out_dir`]). On error nothing is left at
+/// `opts.out` and nothing else is changed.
+pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
+    let t0 = Instant::now();
+    let cfg = &opts.config;
+    cfg.validate()?;
+    let mut reads: Vec<&Path> = opts.inputs.iter().map(PathBuf::as_path).collect();
+    if let TextureSource::Image(image) = &opts.texture {
+        reads.push(image);
+    }
+    let out = OutDir::claim(&opts.out, &reads, opts.force)?;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    check_extent(&hf, opts)?;
+    let t_load = t0.elapsed();
+    let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| BuildError::ThreadPool { threads, why: e.to_string() })?;
+
+    let built = pool.install(|| schedule::build_into(&hf, opts, out.tmp()))?;
+    let (mut report, tree, records, texture, [t_plan, t_source, t_chunks]) = built;
+    let t_idx = Instant::now();
+    let mut extras = tileset_extras(&hf, opts, &tree);
+    extras.source =
+        SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
+    extras.texture = texture;
+    let doc = tileset_json(&tree, &records, &extras);
+    // Compact: a client reads the whole index before it draws anything,
+    // and indentation was four fifths of it. `jq . tileset.json` reads it.
+    let bytes = serde_json::to_vec(&doc).expect("JSON of plain values");
+    let path = out.tmp().join("tileset.json");
+    std::fs::write(&path, &bytes).map_err(|source| BuildError::Io { path, source })?;
+    out.commit()?;
+    report.bytes += bytes.len() as u64;
+    report.bytes_per_sample = report.bytes as f64 / report.samples as f64;
+    report.threads = threads;
+    report.seconds = StageTimes {
+        load: t_load.as_secs_f64(),
+        plan: t_plan.as_secs_f64(),
+        texture_source: t_source.as_secs_f64(),
+        chunks: t_chunks.as_secs_f64(),
+        index: t_idx.elapsed().as_secs_f64(),
+        total: t0.elapsed().as_secs_f64(),
+    };
+    report.peak_rss_bytes = peak_rss();
+    Ok(report)
+}
+
+/// The widest a grid may span on either axis, metres: about the Earth's
+/// circumference. A wider grid is no terrain (its spacing is wrong), and
+/// its positions would lose metres in f32 and its geometric errors overflow.
+pub const MAX_EXTENT_M: f64 = 4.0e7;
+
+/// Refuses a grid whose extent, from its sample count and spacing (the
+/// file's own or `spacing_m`), is beyond [`MAX_EXTENT_M`].
+fn check_extent(hf: &Heightfield, opts: &BuildOptions) -> Result<(), BuildError> {
+    let extent = [(hf.width, hf.spacing_m[0]), (hf.height, hf.spacing_m[1])].map(|(n, s)| n.saturating_sub(1) as f64 * s);
+    if extent.iter().all(|e| e.is_finite() && *e <= MAX_EXTENT_M) {
+        return Ok(());
+    }
+    let files: Vec<String> = opts.inputs.iter().map(|p| p.display().to_string()).collect();
+    Err(BuildError::Extent { files: files.join(", "), extent_m: extent, spacing_m: hf.spacing_m })
+}
+
+fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
+    TilesetExtras {
+        generator: format!("terrachunk {}", env!("CARGO_PKG_VERSION")),
+        grid: GridSize { width: hf.width as u32, height: hf.height as u32 },
+        spacing_m: hf.spacing_m,
+        vertical_scale: opts.config.vertical_scale,
+        max_error_m: opts.config.max_error_m,
+        tau_max_px: opts.config.tau_max_px,
+        levels: tree.depth() + 1,
+        delta_m: tree.delta_m.clone(),
+        source: Vec::new(),
+        georef: hf.georef.clone(),
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m),
+        morph: MorphConvention {
+            target: "parent".into(),
+            delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \
+                    skirt bottom vertices have delta 0"
+                .into(),
+            schedule: "blend weight toward the parent w = clamp(tau/rho - 1, 0, 1) keeps the screen error <= tau; \
+                       Ulrich's t = clamp(2 rho/tau - 1, 0, 1) (w = 1 - t) can reach 9/8 tau"
+                .into(),
+        },
+        texture: None,
+        skirt: "bottom = lowest valid sample, vertex or parent height between the neighbouring border vertices, \
+                minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
+            .into(),
+    }
+}

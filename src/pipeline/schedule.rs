@@ -1,0 +1,541 @@
+//! When each chunk is built: the tree top-down, siblings in parallel
+//! (rayon), each chunk through the per-chunk path ([`super::chunk`]), and
+//! the two retries around it: a quantized chunk shaped again at a wider
+//! margin next to cut points ([`CUT_SHARES`]), and the whole tree planned
+//! again with one more refine level where a chunk cannot meet its δ within
+//! `max_chunk_vertices` ([`build_into`]).
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use super::report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Report};
+use super::{BuildError, BuildOptions};
+use crate::chunk::Chunk;
+use crate::config::{Mesher, dense_leaf_cells};
+use crate::mesh::rtin::{self, Rtin};
+use crate::heightfield::{Heightfield, void_fill};
+use crate::mesh::decimate::{CUT_SHARE, Grid, U16_INDEXED};
+use crate::mesh::{ChunkMesh, MeshError};
+use crate::output::compress::Quantization;
+use crate::output::gltf::GlbContext;
+use crate::output::tileset::TileRecord;
+use crate::progress;
+use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
+use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
+use crate::texture::source::{generate, generated_to_px, load_image};
+use crate::texture::{ColourSource, Limit, NormalSource, TextureExtras, TextureSource, Texturer};
+
+/// What [`build_into`] hands back: the report so far, the tree, the index
+/// records, the texture extras, and the plan, texture source and chunk times.
+pub(super) type Built = (Report, ChunkTree, Vec<TileRecord>, Option<TextureExtras>, [Duration; 3]);
+
+/// Plans the tree and builds every chunk into `tmp`, planning again with
+/// narrower leaves or one more refine level where a chunk is too dense.
+pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
+    let t = Instant::now();
+    let filled = void_fill(hf);
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let t_fill = t.elapsed();
+    // The plan needs only the colour source's scale, which a generated
+    // map's size gives before it is made: the map is generated while the
+    // plan's estimate meshes its windows (both in parallel inside, each
+    // filling the other's idle moments). An image is loaded first.
+    let plan = |to_px| timed(|| plan_tree(hf, &grid, &opts.config, to_px));
+    let (colour, (plan, t_estimate)) = match &opts.texture {
+        TextureSource::None => (None, plan(None)),
+        TextureSource::Image(path) => {
+            let (colour, t) = timed(|| load_image(path, hf));
+            let colour = colour?;
+            let to_px = colour.to_px;
+            (Some((colour, t)), plan(Some(to_px)))
+        }
+        TextureSource::Generated => {
+            let ((colour, t), plan) = rayon::join(
+                || timed(|| generate(hf, filled.as_deref(), &opts.config)),
+                || plan(Some(generated_to_px(hf, &opts.config))),
+            );
+            (Some((colour?, t)), plan)
+        }
+    };
+    let (colour, t_source) = colour.map_or((None, Duration::ZERO), |(c, t)| (Some(c), t));
+    let t_plan = t_fill + t_estimate;
+    // A coarse chunk that cannot meet its δ in `max_chunk_vertices` (noise, huge
+    // relief against a small error) gets a larger δ: one more level at the
+    // bottom refines the leaves in place, and every δ above doubles.
+    let Planned { mut estimate, mut leaf_cells, mut refine } = plan;
+    let mut estimated = refine;
+    let dense = dense_leaf_cells(opts.config.max_chunk_vertices);
+    let t = Instant::now();
+    let attempts = Instant::now();
+    loop {
+        let tree = match opts.config.mesher {
+            Mesher::Tin => estimate.tree(leaf_cells, refine),
+            Mesher::Rtin => rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine),
+        };
+        // An attempt that stopped leaves tiles of a tree planned otherwise.
+        let tiles = tmp.join("tiles");
+        if tiles.exists() {
+            std::fs::remove_dir_all(&tiles).map_err(|source| BuildError::Io { path: tiles, source })?;
+        }
+        let discarded = attempts.elapsed();
+        let lone_parts = lone_parts(&tree, &mut estimate);
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts) {
+            Ok((mut report, records, texture)) => {
+                report.refine_levels = refine;
+                report.refine_estimated = estimated;
+                report.discarded_s = discarded.as_secs_f64();
+                report.leaf_cells = leaf_cells;
+                report.leaf_width_cells = tree.widest_cells(tree.depth()).into_iter().max().unwrap_or(0);
+                report.roots = (tree.roots().len(), tree.widest_cells(0).into_iter().max().unwrap_or(0));
+                return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
+            }
+            // Leaves wider than a dense leaf may be: refine levels keep their
+            // footprint and cannot help, narrower leaves do.
+            Err(BuildError::Mesh(_)) if opts.config.leaf_cells.is_none() && leaf_cells > dense => {
+                (leaf_cells, refine) = estimate.leaf_cells(dense);
+                estimated = refine;
+            }
+            // A chosen wide leaf that is too dense at max_error_m: the last
+            // level always has the leaves' footprint and δ, so refine levels
+            // cannot help.
+            Err(BuildError::Mesh(source @ MeshError::TooDense { level, .. }))
+                if leaf_cells > dense && level == tree.depth() =>
+            {
+                return Err(BuildError::LeafTooWide { leaf_cells, dense, source });
+            }
+            Err(BuildError::Mesh(_)) if refine < MAX_REFINE_LEVELS => refine += 1,
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// What `f` returns and how long it took.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
+    let t = Instant::now();
+    (f(), t.elapsed())
+}
+
+pub(super) struct Timers {
+    pub(super) mesh: AtomicU64,
+    pub(super) skirt_morph: AtomicU64,
+    pub(super) check: AtomicU64,
+    pub(super) texture: AtomicU64,
+    pub(super) write: AtomicU64,
+}
+
+impl Timers {
+    pub(super) fn add(a: &AtomicU64, since: Instant) {
+        a.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
+
+fn build_levels(
+    hf: &Heightfield,
+    grid: &Grid,
+    tree: &ChunkTree,
+    colour: Option<&ColourSource>,
+    opts: &BuildOptions,
+    tmp: &Path,
+    lone_parts: bool,
+) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
+    let cfg = &opts.config;
+    let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
+    let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
+    let normals = (cfg.normal_map && colour.is_some()).then(|| NormalSource::new(grid, hf.spacing_m));
+    let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
+    let quantization = cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m)).transpose()?;
+    let t = Instant::now();
+    let rtin = (cfg.mesher == Mesher::Rtin).then(|| Rtin::new(grid, tree, quantization.as_ref().map(|q| q.step_y_m)));
+    let run = Run {
+        hf,
+        grid,
+        tree,
+        opts,
+        tmp,
+        ctx: GlbContext {
+            spacing_m: hf.spacing_m,
+            generator: &generator,
+            vertex_cache: cfg.triangle_order(),
+            quantization: quantization.as_ref(),
+            meshopt: cfg.compress.meshopt(),
+            normals: cfg.normal_encoding(),
+        },
+        texturer: texturer.as_ref(),
+        lone_parts,
+        rtin: rtin.as_ref(),
+        timers: Timers {
+            mesh: AtomicU64::new(0),
+            skirt_morph: AtomicU64::new(0),
+            check: AtomicU64::new(0),
+            texture: AtomicU64::new(0),
+            write: AtomicU64::new(0),
+        },
+        bytes: AtomicU64::new(0),
+        failed: std::sync::atomic::AtomicBool::new(false),
+        bar: progress::bar(opts.progress, planned as u64, "chunks at most"),
+    };
+    Timers::add(&run.timers.mesh, t);
+    let chunks = run.all_chunks();
+    run.bar.finish_and_clear();
+    let mut chunks = chunks?;
+    chunks.sort_by_key(|c| c.record.key);
+    let mut report = Report {
+        samples: hf.width * hf.height,
+        valid_samples: hf.valid_count(),
+        grid: [hf.width, hf.height],
+        spacing_m: hf.spacing_m,
+        ..Report::default()
+    };
+    for c in &chunks {
+        let level = c.record.key.level;
+        let delta = tree.delta_m[level as usize];
+        if report.levels.last().is_none_or(|l| l.level != level) {
+            report.levels.push(LevelReport { level, delta_m: delta, ..LevelReport::default() });
+        }
+        let lr = report.levels.last_mut().expect("pushed above");
+        let figures = &c.figures;
+        lr.chunks += 1;
+        lr.triangles += figures.triangles;
+        lr.skirt_triangles += figures.skirt_triangles;
+        lr.vertices += figures.vertices;
+        lr.bytes += figures.bytes;
+        if let Some(tf) = &figures.texture {
+            let bound_m = delta / cfg.tau_max_px;
+            let lt = lr.texture.get_or_insert_with(|| LevelTexture { bound_m, ..LevelTexture::default() });
+            lt.texel_m = lt.texel_m.max(tf.texel_m);
+            match tf.limit {
+                Limit::Bound => lt.limited_by_bound += 1,
+                Limit::Source => lt.limited_by_source += 1,
+                Limit::MaxTexturePx => lt.limited_by_cap += 1,
+            }
+            lt.over_bound += usize::from(tf.texel_m > bound_m * (1.0 + 1e-9));
+            lt.largest = [0, 1].map(|a| lt.largest[a].max(tf.texels[a]));
+            lt.texels += u64::from(tf.texels[0]) * u64::from(tf.texels[1]);
+            lt.texture_bytes += tf.bytes;
+        }
+        lr.max_error_m = lr.max_error_m.max(c.max_error_m);
+        lr.leaves += usize::from(c.leaf);
+        report.remeshed_for_cut_points += usize::from(c.remeshed);
+        if let Some(e) = c.over_delta_m {
+            let k = c.record.key;
+            let chunk = format!("{}/{}/{}", k.level, k.x, k.y);
+            report.over_delta_as_written.push(OverDelta { chunk, error_m: e, delta_m: delta });
+        }
+    }
+    report.bytes = run.bytes.load(Ordering::Relaxed);
+    let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
+    let t = &run.timers;
+    report.thread_seconds = ChunkStageTimes {
+        mesh: s(&t.mesh),
+        skirt_morph: s(&t.skirt_morph),
+        check: s(&t.check),
+        texture: s(&t.texture),
+        write: s(&t.write),
+    };
+    let generated = opts.texture == TextureSource::Generated;
+    Ok((report, chunks.into_iter().map(|c| c.record).collect(), texturer.map(|t| t.extras(cfg, generated))))
+}
+
+fn is_cancel(e: &BuildError) -> bool {
+    matches!(e, BuildError::Mesh(MeshError::Cancelled))
+}
+
+/// The first error in `results` that is not a cancellation (which another
+/// chunk's failure caused), taken out.
+fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError> {
+    let k = results.iter().position(|r| r.as_ref().is_err_and(|e| !is_cancel(e)))?;
+    results.swap_remove(k).err()
+}
+
+/// The most chunks a level may have to be built level-first
+/// ([`Run::all_chunks`]): at most this many meshes are kept at once. Real
+/// terrain's top chunks are sparse (California's 2 roots at 1 m: 254 000
+/// and 193 000 vertices, the 8 below them about 180 000 each); noise at a
+/// small error, at most `max_chunk_vertices` each, is the worst case.
+const LEVEL_FIRST_CHUNKS: usize = 16;
+
+/// What one chunk adds to the report and the index.
+pub(super) struct BuiltChunk {
+    pub(super) record: TileRecord,
+    pub(super) figures: LevelFigures,
+    pub(super) max_error_m: f64,
+    /// Meshed again for its cut points (quantized output), and, where even
+    /// that missed δ, its error as written.
+    pub(super) remeshed: bool,
+    pub(super) over_delta_m: Option<f64>,
+    /// No children: already within max_error, or at the deepest level.
+    pub(super) leaf: bool,
+}
+
+/// A chunk meshed and assembled, not yet written.
+pub(super) struct Meshed {
+    pub(super) chunk: Chunk,
+    pub(super) remeshed: bool,
+    pub(super) over_delta_m: Option<f64>,
+    pub(super) max_error_m: f64,
+    pub(super) leaf: bool,
+}
+
+/// One build's shared state.
+pub(super) struct Run<'a> {
+    pub(super) hf: &'a Heightfield,
+    pub(super) grid: &'a Grid<'a>,
+    pub(super) tree: &'a ChunkTree,
+    pub(super) opts: &'a BuildOptions,
+    pub(super) tmp: &'a Path,
+    pub(super) ctx: GlbContext<'a>,
+    pub(super) texturer: Option<&'a Texturer<'a>>,
+    /// The lone chunks are filled by parts ([`lone_parts`]).
+    pub(super) lone_parts: bool,
+    /// The bintree's error field, where it meshes the chunks.
+    pub(super) rtin: Option<&'a Rtin>,
+    pub(super) timers: Timers,
+    pub(super) bytes: AtomicU64,
+    /// Set on the first error, so the other subtrees stop early.
+    pub(super) failed: std::sync::atomic::AtomicBool,
+    pub(super) bar: indicatif::ProgressBar,
+}
+
+impl Run<'_> {
+    /// Whether chunk `k` has any data to mesh.
+    fn worth_building(&self, k: ChunkKey) -> bool {
+        self.grid.filled.is_none() || has_valid(self.grid, self.tree, k)
+    }
+
+    /// Builds every chunk. A chunk whose footprint holds more samples than
+    /// one mesh may have vertices can fail to meet its δ, and then the whole
+    /// build starts again with one more level ([`build_into`]). Such chunks
+    /// fail most often at the top, so the top levels are built first, one
+    /// level at a time, while their chunks hold more samples than u16
+    /// indices could (whatever `max_chunk_vertices`) and are few enough
+    /// that keeping a level's meshes costs little ([`LEVEL_FIRST_CHUNKS`]):
+    /// a failure there wastes only them, not whole subtrees built depth
+    /// first before it, and a level's textures and files are written while
+    /// the next is meshed. (Bounding this by `max_chunk_vertices` instead
+    /// left Fuji's 513² grid with no level-first level at 2^20 − 1: its
+    /// root then wrote while the other thread waited, 11 % slower at 1 m.) Below them the tree is built depth first, subtrees in
+    /// parallel: a chunk's mesh lives only while its children are built, so
+    /// memory holds a few root-to-leaf paths rather than whole levels.
+    fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
+        let tree = self.tree;
+        let level_first = (0..=tree.depth())
+            .take_while(|&l| {
+                let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
+                let l = l as usize;
+                wx * wz > U16_INDEXED && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+            })
+            .count();
+        let mut done = Vec::new();
+        // (parent mesh, its children to build)
+        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
+            vec![(None, tree.roots().into_iter().filter(|&k| self.worth_building(k)).collect())];
+        // A level's chunks are textured and written while the next level is
+        // meshed: its meshes are all the next level needs (the root alone
+        // would otherwise keep the other threads waiting while it writes).
+        let mut unwritten: Vec<Meshed> = Vec::new();
+        let write_all = |unwritten: Vec<Meshed>| -> Vec<Result<BuiltChunk, BuildError>> {
+            unwritten.into_par_iter().map(|m| self.finish(m).inspect_err(|_| self.fail())).collect()
+        };
+        for _ in 0..level_first {
+            let jobs: Vec<(Option<&ChunkMesh>, ChunkKey)> =
+                frontier.iter().flat_map(|(p, kids)| kids.iter().map(move |&k| (p.as_ref(), k))).collect();
+            let (mut written, mut level) = rayon::join(
+                || write_all(std::mem::take(&mut unwritten)),
+                || -> Vec<Result<(ChunkMesh, Meshed), BuildError>> {
+                    jobs.par_iter().map(|&(p, k)| self.mesh_chunk(k, p).inspect_err(|_| self.fail())).collect()
+                },
+            );
+            // The error to report is one that is not a cancellation it caused.
+            if let Some(e) = take_error(&mut written).or_else(|| take_error(&mut level)) {
+                return Err(e);
+            }
+            done.extend(written.into_iter().map(|r| r.expect("no error above")));
+            frontier = level
+                .into_iter()
+                .map(|r| {
+                    let (mesh, meshed) = r.expect("no error above");
+                    let kids = self.kids(meshed.chunk.key, meshed.leaf);
+                    unwritten.push(meshed);
+                    (Some(mesh), kids)
+                })
+                .collect();
+        }
+        let (mut written, mut below) = rayon::join(
+            || write_all(unwritten),
+            || -> Vec<Result<Vec<BuiltChunk>, BuildError>> {
+                frontier
+                    .into_par_iter()
+                    .map(|(mesh, kids)| {
+                        let mut all = Vec::new();
+                        for b in kids.par_iter().map(|&k| self.subtree(k, mesh.as_ref())).collect::<Vec<_>>() {
+                            all.extend(b?);
+                        }
+                        Ok(all)
+                    })
+                    .collect()
+            },
+        );
+        if let Some(e) = take_error(&mut written).or_else(|| take_error(&mut below)) {
+            return Err(e);
+        }
+        done.extend(written.into_iter().map(|r| r.expect("no error above")));
+        for b in below {
+            done.extend(b.expect("no error above"));
+        }
+        Ok(done)
+    }
+
+    /// Marks this build as failed: other chunks stop early.
+    fn fail(&self) {
+        self.failed.store(true, Ordering::Relaxed);
+    }
+
+    /// The children of a chunk that are worth building.
+    fn kids(&self, key: ChunkKey, leaf: bool) -> Vec<ChunkKey> {
+        match leaf {
+            true => Vec::new(),
+            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+        }
+    }
+
+    /// Builds chunk `key` and everything below it.
+    fn subtree(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<Vec<BuiltChunk>, BuildError> {
+        if self.failed.load(Ordering::Relaxed) {
+            return Ok(Vec::new()); // another subtree failed: its error is returned
+        }
+        let (mesh, built) = match self.chunk(key, parent) {
+            Ok(built) => built,
+            // Another chunk failed and returns its own error.
+            Err(e) if is_cancel(&e) => return Ok(Vec::new()),
+            Err(e) => {
+                self.fail();
+                return Err(e);
+            }
+        };
+        let kids = self.kids(built.record.key, built.leaf);
+        let mut all = vec![built];
+        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> =
+            kids.par_iter().map(|&k| self.subtree(k, Some(&mesh))).collect();
+        drop(mesh);
+        for b in below {
+            all.extend(b?);
+        }
+        Ok(all)
+    }
+
+    /// Meshes, assembles, textures and writes one chunk.
+
+    /// Builds one chunk: shaped, then textured, encoded and written.
+    fn chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, BuiltChunk), BuildError> {
+        let (mesh, meshed) = self.mesh_chunk(key, parent)?;
+        Ok((mesh, self.finish(meshed)?))
+    }
+
+    /// Shapes one chunk ([`Run::shape`]): what its children need (the
+    /// mesh) and what is left to write. A quantized chunk is measured again
+    /// as it will be written (cut points move sideways to the grid) and,
+    /// where that misses δ, shaped again with a wider margin next to cut
+    /// points ([`CUT_SHARES`]).
+    fn mesh_chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, Meshed), BuildError> {
+        let delta = self.tree.delta_m[key.level as usize];
+        // The attempt whose written error came closest, while none is within δ.
+        let mut closest: Option<(f64, ChunkMesh, Chunk)> = None;
+        let mut shares = CUT_SHARES.iter();
+        let (mesh, chunk, remeshed, over_delta_m) = loop {
+            let Some(&share) = shares.next() else {
+                let (e, mesh, chunk) = closest.expect("one attempt at least");
+                break (mesh, chunk, true, Some(e));
+            };
+            let (mesh, chunk) = self.shape(key, parent, share)?;
+            let Some(q) = self.ctx.quantization else { break (mesh, chunk, false, None) };
+            // Within f64 rounding of δ is δ, as `verify` takes it (a sample
+            // exactly δ off, which the mesher leaves out, reads a few ulps over).
+            let t = Instant::now();
+            let (lo, hi) = chunk
+                .surface
+                .positions
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])));
+            let slack = if lo > hi { 0.0 } else { 256.0 * f64::EPSILON * (lo.abs().max(hi.abs()) + (hi - lo)) };
+            let written = q.cut_error(&chunk, self.grid, delta + slack)?;
+            Timers::add(&self.timers.check, t);
+            if written <= delta + slack {
+                break (mesh, chunk, share != CUT_SHARE, None);
+            }
+            if closest.as_ref().is_none_or(|c| written < c.0) {
+                closest = Some((written, mesh, chunk));
+            }
+        };
+        let stops = !self.opts.config.complete_tree && mesh.meets(self.opts.config.max_error_m);
+        let leaf = stops || self.tree.children(key).is_empty();
+        let max_error_m = mesh.max_error_m;
+        Ok((mesh, Meshed { chunk, remeshed, over_delta_m, max_error_m, leaf }))
+    }
+}
+
+/// The shares of δ a quantized chunk is meshed to next to cut points, tried
+/// in turn until the chunk as written (cut points rounded sideways to the
+/// grid) is within δ ([`Quantization::cut_error`]). At 0 every sample
+/// under a cut-point triangle is on the surface before rounding; a chunk
+/// still over δ then is written as the attempt that came closest and
+/// reported (`Report::over_delta_as_written`).
+const CUT_SHARES: [f64; 5] = [CUT_SHARE, 0.9, 0.75, 0.5, 0.0];
+
+/// A level of fewer chunks than this (the root) fills the parts its
+/// dividing lines make in parallel (`ChunkSpec::split_insertion`): alone,
+/// its one chunk would keep every other thread waiting. The rule is the
+/// tree's, not the thread count's, so the output is the same at any count.
+const SPLIT_BELOW_CHUNKS: usize = 4;
+
+/// Whether `level` of `tree` has fewer than [`SPLIT_BELOW_CHUNKS`] chunks,
+/// so that its chunks fill their parts in parallel.
+pub(super) fn few_chunks(tree: &ChunkTree, level: u32) -> bool {
+    tree.xs[level as usize].len() * tree.zs[level as usize].len() < SPLIT_BELOW_CHUNKS
+}
+
+/// Whether the lone chunks of `tree` (those of a level of fewer than
+/// [`SPLIT_BELOW_CHUNKS`] that does not split: a root that is a leaf, and
+/// the refine levels below it) get dividing lines so that their parts fill
+/// and thin in parallel ([`DividingLines::Parts`]). The lines cost each
+/// chunk the vertices that refine them, so only chunks the estimate puts
+/// at [`PARTS_VERTICES`] or more take them: Fuji 513² at 30 m (3 162
+/// vertices), not a small or flat grid's few triangles. Decided by the
+/// tree and the data, never the thread count.
+fn lone_parts(tree: &ChunkTree, estimate: &mut Estimate) -> bool {
+    let lone = (0..=tree.depth()).any(|l| few_chunks(tree, l) && !tree.splits(l));
+    lone && estimate.vertices_per_chunk(tree, 0) >= PARTS_VERTICES
+}
+
+/// The fewest vertices a lone chunk is estimated to hold to be filled by
+/// parts ([`lone_parts`]).
+const PARTS_VERTICES: f64 = 2000.0;
+
+/// What a level's summary needs from one written chunk.
+pub(super) struct LevelFigures {
+    pub(super) triangles: usize,
+    pub(super) skirt_triangles: usize,
+    pub(super) vertices: usize,
+    pub(super) bytes: u64,
+    pub(super) texture: Option<TileFigures>,
+}
+
+/// What a level's summary needs from one chunk's texture.
+pub(super) struct TileFigures {
+    pub(super) texel_m: f64,
+    pub(super) texels: [u32; 2],
+    pub(super) limit: Limit,
+    pub(super) bytes: u64,
+}
+
+
+fn has_valid(grid: &Grid, tree: &ChunkTree, k: ChunkKey) -> bool {
+    let ((x0, x1), (z0, z1)) = tree.footprint(k);
+    (z0..=z1).any(|i| {
+        let row = &grid.heights[i as usize * grid.width..];
+        (x0..=x1).any(|j| !row[j as usize].is_nan())
+    })
+}
+
