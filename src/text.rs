@@ -12,24 +12,28 @@ impl fmt::Display for VerifyReport {
         let r = self;
         writeln!(f, "{:>5} {:>7} {:>10} {:>12} {:>12}", "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)")?;
         for (l, c) in &r.levels {
-            writeln!(f, 
+            writeln!(
+                f,
                 "{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}",
                 c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m
             )?;
         }
         writeln!(f, "{} shared borders compared", r.borders_checked)?;
         if let Some(t) = &r.texture {
-            writeln!(f, 
+            writeln!(
+                f,
                 "{:>5} {:>7} {:>10} {:>10} {:>21} {:>18}",
                 "level", "chunks", "T_g (m)", "δ/τ (m)", "over δ/τ: at source", "capped (stated)"
             )?;
             for (l, c) in &t.levels {
-                writeln!(f, 
+                writeln!(
+                    f,
                     "{l:>5} {:>7} {:>10.4} {:>10.4} {:>21} {:>18}",
                     c.chunks, c.texel_m, c.bound_m, c.at_source, c.capped
                 )?;
             }
-            writeln!(f, 
+            writeln!(
+                f,
                 "{} texture seams compared, border texels differ by up to {} (allowed {}), RMS {:.2} (allowed {:.2})",
                 t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
             )?;
@@ -65,7 +69,8 @@ impl fmt::Display for Inspection<'_> {
         let (mlo, mhi) = dys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| (a.min(d), b.max(d)));
         writeln!(f, "chunk      {}/{}/{}", c.key.level, c.key.x, c.key.y)?;
         writeln!(f, "delta_m    {}", c.delta_m)?;
-        writeln!(f, 
+        writeln!(
+            f,
             "footprint  columns {}..={}, rows {}..={}",
             c.footprint[0], c.footprint[1], c.footprint[2], c.footprint[3]
         )?;
@@ -73,7 +78,8 @@ impl fmt::Display for Inspection<'_> {
         if let Some(s) = &c.skirt {
             writeln!(f, "skirt      {} vertices, {} triangles", s.positions.len(), s.triangles.len())?;
         }
-        writeln!(f, 
+        writeln!(
+            f,
             "bounds     x {:.3}..{:.3}  y {:.3}..{:.3}  z {:.3}..{:.3} (m)",
             lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
         )?;
@@ -83,7 +89,8 @@ impl fmt::Display for Inspection<'_> {
                 let cells = f64::from(c.footprint[2 * a + 1] - c.footprint[2 * a]);
                 cells * c.spacing_m[a] / f64::from([t.colour.width, t.colour.height][a] - 1)
             };
-            writeln!(f, 
+            writeln!(
+                f,
                 "texture    {} × {} texels ({}), T_g {:.4} × {:.4} m",
                 t.colour.width,
                 t.colour.height,

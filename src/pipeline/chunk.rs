@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use super::BuildError;
-use super::schedule::{BuiltChunk, LevelFigures, Meshed, Run, Timers, TileFigures, few_chunks};
+use super::schedule::{BuiltChunk, LevelFigures, Meshed, Run, TileFigures, Timers, few_chunks};
 use crate::chunk::{Chunk, Part};
 use crate::mesh::decimate::{ChunkSpec, DividingLines, Grid, build_chunk};
 use crate::mesh::skirt::build_skirt;
@@ -33,7 +33,10 @@ impl Run<'_> {
         let t = Instant::now();
         // Skirts reach below any neighbour of level ≥ L − 1 in any morph state.
         let margin = self.tree.delta_m[(key.level as usize).saturating_sub(2)];
-        let chunk = Chunk { delta_m: self.tree.delta_m[key.level as usize], ..assemble(self.grid, self.hf.spacing_m, &mesh, margin) };
+        let chunk = Chunk {
+            delta_m: self.tree.delta_m[key.level as usize],
+            ..assemble(self.grid, self.hf.spacing_m, &mesh, margin)
+        };
         Timers::add(&self.timers.skirt_morph, t);
         Ok((mesh, chunk))
     }

@@ -223,7 +223,8 @@ pub const MAX_EXTENT_M: f64 = 4.0e7;
 /// Refuses a grid whose extent, from its sample count and spacing (the
 /// file's own or `spacing_m`), is beyond [`MAX_EXTENT_M`].
 fn check_extent(hf: &Heightfield, opts: &BuildOptions) -> Result<(), BuildError> {
-    let extent = [(hf.width, hf.spacing_m[0]), (hf.height, hf.spacing_m[1])].map(|(n, s)| n.saturating_sub(1) as f64 * s);
+    let extent =
+        [(hf.width, hf.spacing_m[0]), (hf.height, hf.spacing_m[1])].map(|(n, s)| n.saturating_sub(1) as f64 * s);
     if extent.iter().all(|e| e.is_finite() && *e <= MAX_EXTENT_M) {
         return Ok(());
     }

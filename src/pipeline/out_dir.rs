@@ -131,7 +131,8 @@ impl OutDir {
         let parent_error = |source| OutDirError::Parent { path: given_parent.into(), source };
         // Missing folders above OUT are made, and removed again if the build fails.
         let created = make_parents(given_parent).map_err(parent_error)?;
-        let mut claimed = OutDir { given: out.into(), path: PathBuf::new(), tmp: PathBuf::new(), force, done: false, created };
+        let mut claimed =
+            OutDir { given: out.into(), path: PathBuf::new(), tmp: PathBuf::new(), force, done: false, created };
         let parent = std::fs::canonicalize(given_parent).map_err(parent_error)?;
         if !parent.is_dir() {
             return Err(parent_error(std::io::Error::new(std::io::ErrorKind::NotADirectory, "not a folder")));
@@ -207,9 +208,7 @@ impl OutDir {
                 self.done = true;
                 Ok(())
             }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                Err(OutDirError::Appeared(self.given.clone()))
-            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Err(OutDirError::Appeared(self.given.clone())),
             Err(source) => Err(OutDirError::Io { path: self.given.clone(), source }),
         }
     }

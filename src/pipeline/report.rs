@@ -160,7 +160,6 @@ pub struct ChunkStageTimes {
     pub write: f64,
 }
 
-
 /// Peak resident set size of this process, bytes (Linux only).
 pub fn peak_rss() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -232,7 +231,8 @@ impl Report {
     /// beside it, renamed over it when complete.
     pub fn write(&self, path: &Path) -> Result<(), ReportError> {
         let io = |source| ReportError::Io { path: path.into(), source };
-        let tmp = temp_beside(path).ok_or_else(|| ReportError::Path { path: path.into(), why: "it names no file".into() })?;
+        let tmp =
+            temp_beside(path).ok_or_else(|| ReportError::Path { path: path.into(), why: "it names no file".into() })?;
         let json = serde_json::to_vec_pretty(self).expect("JSON of plain values");
         let written = std::fs::write(&tmp, json).and_then(|_| std::fs::rename(&tmp, path));
         if written.is_err() {
@@ -283,131 +283,137 @@ impl Report {
 impl std::fmt::Display for Summary<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let (r, out, max_chunk_vertices) = (self.report, self.out, self.max_chunk_vertices);
-    writeln!(
-                f,
-        "{} × {} samples ({} valid), spacing {:.3} × {:.3} m",
-        r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]
-    )?;
-    writeln!(
-                f,
-        "{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}",
-        "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)"
-    )?;
-    for l in &r.levels {
         writeln!(
-                f,
-            "{:>5} {:>10.4} {:>7} {:>7} {:>11} {:>9} {:>11.4}",
-            l.level, l.delta_m, l.chunks, l.leaves, l.triangles, l.skirt_triangles, l.max_error_m
+            f,
+            "{} × {} samples ({} valid), spacing {:.3} × {:.3} m",
+            r.grid[0], r.grid[1], r.valid_samples, r.spacing_m[0], r.spacing_m[1]
         )?;
-    }
-    if r.levels.iter().any(|l| l.texture.is_some()) {
         writeln!(
-                f,
-            "{:>5} {:>10} {:>10} {:>11} {:>13} {:>21} {:>13} {:>14}",
-            "level", "T_g (m)", "δ/τ (m)", "largest", "texels", "sized by b/s/cap", "texture B", "geometry B"
+            f,
+            "{:>5} {:>10} {:>7} {:>7} {:>11} {:>9} {:>11}",
+            "level", "δ (m)", "chunks", "leaves", "triangles", "skirt tri", "max err (m)"
         )?;
         for l in &r.levels {
-            if let Some(t) = &l.texture {
-                writeln!(
+            writeln!(
                 f,
-                    "{:>5} {:>10.4} {:>10.4} {:>11} {:>13} {:>21} {:>13} {:>14}",
-                    l.level,
-                    t.texel_m,
-                    t.bound_m,
-                    format!("{}×{}", t.largest[0], t.largest[1]),
-                    t.texels,
-                    format!("{}/{}/{}", t.limited_by_bound, t.limited_by_source, t.limited_by_cap),
-                    t.texture_bytes,
-                    l.bytes - t.texture_bytes
-                )?;
+                "{:>5} {:>10.4} {:>7} {:>7} {:>11} {:>9} {:>11.4}",
+                l.level, l.delta_m, l.chunks, l.leaves, l.triangles, l.skirt_triangles, l.max_error_m
+            )?;
+        }
+        if r.levels.iter().any(|l| l.texture.is_some()) {
+            writeln!(
+                f,
+                "{:>5} {:>10} {:>10} {:>11} {:>13} {:>21} {:>13} {:>14}",
+                "level", "T_g (m)", "δ/τ (m)", "largest", "texels", "sized by b/s/cap", "texture B", "geometry B"
+            )?;
+            for l in &r.levels {
+                if let Some(t) = &l.texture {
+                    writeln!(
+                        f,
+                        "{:>5} {:>10.4} {:>10.4} {:>11} {:>13} {:>21} {:>13} {:>14}",
+                        l.level,
+                        t.texel_m,
+                        t.bound_m,
+                        format!("{}×{}", t.largest[0], t.largest[1]),
+                        t.texels,
+                        format!("{}/{}/{}", t.limited_by_bound, t.limited_by_source, t.limited_by_cap),
+                        t.texture_bytes,
+                        l.bytes - t.texture_bytes
+                    )?;
+                }
+            }
+            for l in &r.levels {
+                if let Some(t) = l.texture.as_ref().filter(|t| t.over_bound > 0) {
+                    let why = if t.limited_by_cap > 0 {
+                        "max_texture_px caps them (raise it to keep the bound)"
+                    } else {
+                        "the texture source is coarser than that (no tile is finer than its source)"
+                    };
+                    writeln!(
+                        f,
+                        "level {}: {} chunk(s) have T_g up to {:.4} m > δ/τ_max = {:.4} m: {why}",
+                        l.level, t.over_bound, t.texel_m, t.bound_m
+                    )?;
+                }
             }
         }
-        for l in &r.levels {
-            if let Some(t) = l.texture.as_ref().filter(|t| t.over_bound > 0) {
-                let why = if t.limited_by_cap > 0 {
-                    "max_texture_px caps them (raise it to keep the bound)"
-                } else {
-                    "the texture source is coarser than that (no tile is finer than its source)"
-                };
-                writeln!(
-                f,
-                    "level {}: {} chunk(s) have T_g up to {:.4} m > δ/τ_max = {:.4} m: {why}",
-                    l.level, t.over_bound, t.texel_m, t.bound_m
-                )?;
-            }
-        }
-    }
-    let s = &r.seconds;
-    writeln!(f, "{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display())?;
-    writeln!(
-                f,
-        "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, {}texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
-        s.load,
-        s.plan,
-        s.texture_source,
-        s.chunks,
-        r.thread_seconds.mesh,
-        r.thread_seconds.skirt_morph,
-        if r.thread_seconds.check > 0.0 {
-            format!("as-written check {:.2}, ", r.thread_seconds.check)
-        } else {
-            String::new()
-        },
-        r.thread_seconds.texture,
-        r.thread_seconds.write,
-        s.index,
-        s.total,
-        r.threads
-    )?;
-    let chunks: usize = r.levels.iter().map(|l| l.chunks).sum();
-    let vertices: usize = r.levels.iter().map(|l| l.vertices).sum();
-    if chunks > 0 {
+        let s = &r.seconds;
+        writeln!(f, "{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display())?;
         writeln!(
-                f,
-            "leaves up to {} cells wide{}; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
-            r.leaf_width_cells,
-            if r.leaf_width_cells < r.leaf_cells { format!(" (leaf_cells {})", r.leaf_cells) } else { String::new() },
-            vertices as f64 / chunks as f64,
-            r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
-        )?;
-    }
-    if r.roots.0 > 1 {
-        let written = r.levels.first().map_or(0, |l| l.chunks);
-        writeln!(
-                f,
-            "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}",
-            r.roots.1,
-            if written < r.roots.0 {
-                format!(" ({} more footprints hold no valid sample)", r.roots.0 - written)
+            f,
+            "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, {}texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",
+            s.load,
+            s.plan,
+            s.texture_source,
+            s.chunks,
+            r.thread_seconds.mesh,
+            r.thread_seconds.skirt_morph,
+            if r.thread_seconds.check > 0.0 {
+                format!("as-written check {:.2}, ", r.thread_seconds.check)
             } else {
                 String::new()
-            }
+            },
+            r.thread_seconds.texture,
+            r.thread_seconds.write,
+            s.index,
+            s.total,
+            r.threads
         )?;
-    }
-    if r.refine_levels > 0 {
-        writeln!(
+        let chunks: usize = r.levels.iter().map(|l| l.chunks).sum();
+        let vertices: usize = r.levels.iter().map(|l| l.vertices).sum();
+        if chunks > 0 {
+            writeln!(
                 f,
-            "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than {} vertices (max_chunk_vertices; {})",
-            r.refine_levels,
-            max_chunk_vertices,
-            match (r.refine_estimated, r.refine_levels - r.refine_estimated) {
-                (_, 0) => "estimated from the data, not built".to_string(),
-                (0, _) => format!("found by attempts that took {:.1} s", r.discarded_s),
-                (e, _) =>
-                    format!("{e} estimated from the data, the rest found by attempts that took {:.1} s", r.discarded_s),
-            }
-        )?;
-    }
-    if r.remeshed_for_cut_points > 0 {
-        writeln!(
+                "leaves up to {} cells wide{}; {:.0} surface vertices per chunk on average ({:.0} at the deepest level)",
+                r.leaf_width_cells,
+                if r.leaf_width_cells < r.leaf_cells {
+                    format!(" (leaf_cells {})", r.leaf_cells)
+                } else {
+                    String::new()
+                },
+                vertices as f64 / chunks as f64,
+                r.levels.last().map_or(0.0, |l| l.vertices as f64 / l.chunks.max(1) as f64)
+            )?;
+        }
+        if r.roots.0 > 1 {
+            let written = r.levels.first().map_or(0, |l| l.chunks);
+            writeln!(
                 f,
-            "{} chunk(s) meshed again with a wider margin next to cut points, so that rounding them to the u16 grid keeps δ",
-            r.remeshed_for_cut_points
-        )?;
-    }
-    if let Some(b) = r.peak_rss_bytes {
-        writeln!(f, "peak memory: {:.1} MB", b as f64 / 1e6)?;
-    }
+                "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}",
+                r.roots.1,
+                if written < r.roots.0 {
+                    format!(" ({} more footprints hold no valid sample)", r.roots.0 - written)
+                } else {
+                    String::new()
+                }
+            )?;
+        }
+        if r.refine_levels > 0 {
+            writeln!(
+                f,
+                "{} level(s) refine the leaves in place (same footprint, half the δ): with fewer, coarser chunks would need more than {} vertices (max_chunk_vertices; {})",
+                r.refine_levels,
+                max_chunk_vertices,
+                match (r.refine_estimated, r.refine_levels - r.refine_estimated) {
+                    (_, 0) => "estimated from the data, not built".to_string(),
+                    (0, _) => format!("found by attempts that took {:.1} s", r.discarded_s),
+                    (e, _) => format!(
+                        "{e} estimated from the data, the rest found by attempts that took {:.1} s",
+                        r.discarded_s
+                    ),
+                }
+            )?;
+        }
+        if r.remeshed_for_cut_points > 0 {
+            writeln!(
+                f,
+                "{} chunk(s) meshed again with a wider margin next to cut points, so that rounding them to the u16 grid keeps δ",
+                r.remeshed_for_cut_points
+            )?;
+        }
+        if let Some(b) = r.peak_rss_bytes {
+            writeln!(f, "peak memory: {:.1} MB", b as f64 / 1e6)?;
+        }
         Ok(())
     }
 }

@@ -530,7 +530,6 @@ pub(super) struct TileFigures {
     pub(super) bytes: u64,
 }
 
-
 fn has_valid(grid: &Grid, tree: &ChunkTree, k: ChunkKey) -> bool {
     let ((x0, x1), (z0, z1)) = tree.footprint(k);
     (z0..=z1).any(|i| {
@@ -538,4 +537,3 @@ fn has_valid(grid: &Grid, tree: &ChunkTree, k: ChunkKey) -> bool {
         (x0..=x1).any(|j| !row[j as usize].is_nan())
     })
 }
-
