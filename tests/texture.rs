@@ -513,12 +513,9 @@ fn untextured_output_is_byte_identical_to_before_textures() {
     let cfg = Config { max_error_m: 0.5, leaf_cells: Some(8), threads: 1, thin: Thin::None, ..Config::default() };
     build_with(&dem, &out, cfg, TextureSource::None);
     let mut lines = Vec::new();
-    for (p, mut bytes) in all_files(&out) {
-        if p.ends_with("tileset.json") {
-            let text =
-                String::from_utf8(bytes).unwrap().replace(&format!("{:?}", dem.display().to_string()), "\"g.asc\"");
-            bytes = text.into_bytes();
-        }
+    // The index names its DEM by file name and hash, so it is the same
+    // bytes wherever the test runs.
+    for (p, bytes) in all_files(&out) {
         lines.push(format!("{} {} {:016x}", p.display(), bytes.len(), fnv1a(&bytes)));
     }
     let text = lines.join("\n") + "\n";

@@ -99,7 +99,7 @@ impl Run<'_> {
         self.bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
         Timers::add(&timers.write, t);
         self.bar.inc(1);
-        let (min, max) = bounds(&chunk);
+        let (min, max) = self.ctx.quantization.map_or(bounds(&chunk), |q| q.written_bounds(bounds(&chunk), key.level));
         let figures = LevelFigures {
             triangles: chunk.surface.triangle_count(),
             skirt_triangles: chunk.skirt.triangle_count(),

@@ -207,7 +207,7 @@ fn glb_length_holds(path: &Path, head: &[u8], len: u64) -> Result<(), VerifyErro
     }
     let declared = u32::from_le_bytes([head[8], head[9], head[10], head[11]]);
     if u64::from(declared) != len {
-        return Err(file_err(path, format!("its GLB header declares {declared} bytes but the file holds {len}")));
+        return Err(file_err(path, format!("not a GLB of {len} bytes: its header declares {declared}")));
     }
     Ok(())
 }

@@ -180,6 +180,15 @@ impl Quantization {
         Ok(best.iter().map(|b| b.1).fold(low, f64::max))
     }
 
+    /// The box `(min, max)` of a chunk's exact positions widened by half
+    /// a step of `level` on each axis: its positions as written round to
+    /// the grid by up to that, so this box holds them.
+    pub fn written_bounds(&self, (min, max): ([f64; 3], [f64; 3]), level: u32) -> ([f64; 3], [f64; 3]) {
+        let k = f64::from(1u32 << self.shift[level as usize]);
+        let half = [self.spacing_m[0] / k / 2.0, self.step_y_m / 2.0, self.spacing_m[1] / k / 2.0];
+        ([0, 1, 2].map(|a| min[a] - half[a]), [0, 1, 2].map(|a| max[a] + half[a]))
+    }
+
     /// The grid of one chunk: where its integers start and their step.
     pub fn frame(&self, chunk: &Chunk) -> Result<Frame, QuantizeError> {
         let k = f64::from(1u32 << self.shift[chunk.key.level as usize]);
