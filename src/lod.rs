@@ -259,6 +259,10 @@ pub struct LodView {
     /// carried forward): prefetch ranks by the larger ρ of the two eyes.
     /// `None` for a still camera.
     pub eye_ahead: Option<[f64; 3]>,
+    /// Where the eye will be next frame, if it moves: a chunk whose ρ will
+    /// pass τ by then splits now (its children resident), so the screen
+    /// error stays within τ however far a frame moves.
+    pub eye_next: Option<[f64; 3]>,
     /// Screen-space error tolerance τ, pixels.
     pub tau_px: f64,
     /// Morph schedule for the drawn chunks.
@@ -335,6 +339,16 @@ pub fn select(
     let mut stack: Vec<usize> = tree.roots.iter().rev().copied().collect();
     while let Some(n) = stack.pop() {
         if !visible(n) {
+            // Out of view now, but a turn can bring it in: a resident one
+            // about to split gets its children ahead of time too.
+            if resident(n) && view.eye_ahead.is_some() {
+                sel.kept.push(n);
+                let (rho_n, _) = predicted(n);
+                if rho_n > view.tau_px / 2.0 {
+                    let kids = tree.nodes[n].children.iter().filter(|&&c| !resident(c));
+                    sel.prefetch.extend(kids.map(|&c| (c, rho_n / 2.0)));
+                }
+            }
             continue;
         }
         if !resident(n) {
@@ -345,7 +359,10 @@ pub fn select(
         sel.touched.push(n);
         let node = &tree.nodes[n];
         let rho = screen_error(node.delta_m, distance_to_box(view.eye, node.min, node.max), view.k);
-        if rho > view.tau_px && !node.children.is_empty() {
+        // Split where ρ passes τ now or by the next frame: a fast camera
+        // then meets the children near the parent's shape (w ≈ 1), not past it.
+        let rho_next = view.eye_next.map_or(rho, |e| rho.max(rho_at(n, e)));
+        if rho_next > view.tau_px && !node.children.is_empty() {
             let mut all = true;
             for &c in &node.children {
                 if resident(c) {
@@ -448,6 +465,7 @@ mod tests {
             eye,
             k: screen_k(640.0, 60f64.to_radians()),
             eye_ahead: None,
+            eye_next: None,
             tau_px: tau,
             schedule: MorphSchedule::Bounded,
         }

@@ -46,7 +46,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/mount_st_helens_30m.tif");
         let hf = terrachunk::dem::load(std::slice::from_ref(&dem), &Default::default()).unwrap();
         let valid = hf.heights.iter().map(|h| h.is_finite()).collect();
-        let dem = hf.heights.clone();
+        let heights = hf.heights.clone();
         build(&BuildOptions {
             inputs: vec![dem],
             out: dir.clone(),
@@ -57,7 +57,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         })
         .unwrap();
         let reference = Heights::from_leaves(&Tileset::open(&dir).unwrap());
-        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem })
+        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem: heights })
     })
     .lock()
     .unwrap_or_else(|e| e.into_inner())
@@ -714,7 +714,8 @@ fn modes_and_switches_draw_what_they_say() {
     v.opts.look.mode = Mode::Overlay;
     let (over, _) = draw(&mut v);
     let (olines, obg) = (count(&over, &is_line), count(&over, &magenta));
-    assert!(olines > covered / 20 && olines + obg < over.len() / 4 - covered / 2, "overlay: edges over shading");
+    let oshaded = over.len() / 4 - olines - obg;
+    assert!(olines > covered / 20 && oshaded > covered / 10, "overlay: {olines} edge and {oshaded} shaded pixels");
     v.opts.look.mode = Mode::Shaded;
     // One-sided: the sun below the horizon lights nothing that faces up.
     v.opts.look.sun = sun_direction(0.0, -89.0);
@@ -742,7 +743,7 @@ fn modes_and_switches_draw_what_they_say() {
 }
 
 /// A synthetic tileset 600 km wide (129 × 129 samples 4.7 km apart, the
-/// extent of California), 2 × 2 roots, built once.
+/// extent of California), 2 × 2 roots of four levels, built once.
 fn continent() -> &'static (tempfile::TempDir, PathBuf) {
     static C: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     C.get_or_init(|| {
@@ -766,7 +767,8 @@ fn continent() -> &'static (tempfile::TempDir, PathBuf) {
         let dem = tmp.path().join("continent.asc");
         std::fs::write(&dem, text).unwrap();
         let dir = tmp.path().join("continent");
-        let config = Config { max_error_m: 8.0, root_cells: Some(64), ..Config::default() };
+        // 8-cell leaves: four levels under each root.
+        let config = Config { max_error_m: 8.0, root_cells: Some(64), leaf_cells: Some(8), ..Config::default() };
         build_into(&dir, &dem, config, TextureSource::Generated);
         (tmp, dir)
     })
@@ -826,9 +828,13 @@ fn a_600_km_flythrough_keeps_the_screen_error_within_tau() {
             let within = stats.iter().filter(|s| s.max_rho_px <= tau * (1.0 + 1e-9)).count();
             let worst_late = stats[30..].iter().map(|s| s.max_rho_px).fold(0.0, f64::max);
             let worst = stats.iter().map(|s| s.max_rho_px).fold(0.0, f64::max);
+            let why = |f: fn(&terrachunk_view::viewer::FrameStats) -> usize| stats.iter().filter(|s| f(s) > 0).count();
             println!(
-                "600 km flythrough, prefetch {prefetch}, fade {fade}, τ = {tau}: {within} of {} frames within τ, worst ρ {worst:.3} px (after 1 s {worst_late:.3}), {blank} blank frames",
-                stats.len()
+                "600 km flythrough, prefetch {prefetch}, fade {fade}, τ = {tau}: {within} of {} frames within τ, worst ρ {worst:.3} px (after 1 s {worst_late:.3}), {blank} blank frames; frames with a chunk over τ loading {}, budget {}, morphing in {}",
+                stats.len(),
+                why(|s| s.over_tau_loading),
+                why(|s| s.over_tau_budget),
+                why(|s| s.over_tau_fading)
             );
             assert_eq!(blank, 0);
             results.push((prefetch, tau, within, worst_late, stats.len()));
