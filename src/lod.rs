@@ -703,6 +703,28 @@ mod tests {
         assert!(sel.prefetch.is_empty(), "{:?}", sel.prefetch);
     }
 
+    /// A chunk whose ρ passes τ by the next frame splits now; a resident
+    /// chunk out of view that is about to split has its children prefetched.
+    #[test]
+    fn the_next_frame_splits_early_and_out_of_view_chunks_prefetch() {
+        let tree = square_tree(3, 1000.0, 16.0);
+        let level = |n: usize| tree.nodes[n].key.level;
+        // The root within τ (ρ = 1.78 px) now, past it (2.23 px) a frame on.
+        let mut v = view([500.0, 5000.0, 500.0], 2.0);
+        assert!(select(&tree, &v, |_| true, |_| true).draws.iter().all(|d| level(d.node) == 0));
+        v.eye_next = Some([500.0, 4000.0, 500.0]);
+        let sel = select(&tree, &v, |_| true, |_| true);
+        assert!(sel.draws.iter().all(|d| level(d.node) == 1), "{:?}", sel.draws);
+        // Out of view: nothing drawn; with a motion the resident root's children are prefetched.
+        let v = view([500.0, 3000.0, 500.0], 2.0);
+        let root_only = |n: usize| n == 0;
+        assert!(select(&tree, &v, root_only, |_| false).prefetch.is_empty(), "still: nothing");
+        let v = LodView { eye_ahead: Some([500.0, 2900.0, 500.0]), ..v };
+        let sel = select(&tree, &v, root_only, |_| false);
+        assert!(sel.draws.is_empty() && sel.kept == vec![0]);
+        assert_eq!(sel.prefetch.iter().map(|p| p.0).collect::<Vec<_>>(), tree.nodes[0].children);
+    }
+
     #[test]
     fn shown_error_scales_by_the_blend() {
         assert_eq!(shown_error_px(0.8, 0.0, 1.0, Some(2.0)), 0.8);

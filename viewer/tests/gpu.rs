@@ -682,7 +682,11 @@ fn the_normal_map_shades_by_the_dem_normals() {
     let cov: f64 = got.iter().zip(&want).map(|(a, b)| (a - mg) * (b - mw)).sum::<f64>() / n;
     let sd = |v: &[f64], m: f64| (v.iter().map(|a| (a - m).powi(2)).sum::<f64>() / n).sqrt();
     let r = cov / (sd(&got, mg) * sd(&want, mw));
-    println!("normal map: {} pixels, lit/unlit against the DEM's normals: correlation {r:.3}, spread {:.3}", got.len(), sd(&got, mg));
+    println!(
+        "normal map: {} pixels, lit/unlit against the DEM's normals: correlation {r:.3}, spread {:.3}",
+        got.len(),
+        sd(&got, mg)
+    );
     assert!(got.len() > 5000, "{} pixels", got.len());
     assert!(r > 0.8, "the shading does not follow the DEM normals: r = {r:.3}");
 }
@@ -882,4 +886,29 @@ fn several_roots_draw_from_the_first_frame_and_settle_without_holes() {
     let drawn = draw_capture(&mut v, &t, &c, &nodes);
     let holes = cracks(&drawn, &full, 2);
     assert!(holes.is_empty(), "{} holes, e.g. {:?}", holes.len(), &holes[..holes.len().min(5)]);
+}
+
+/// A memory budget too small for the cut leaves chunks above τ for good;
+/// the frame's statistics (the HUD's and the CSV's) say so and say why.
+#[test]
+fn a_budget_too_small_for_the_cut_is_reported_as_the_cause() {
+    let f = fixture();
+    let mut v = viewer(&f.dir, 1.0);
+    let root_bytes = v.resident_bytes();
+    // Room for the roots and one more chunk at most.
+    v.opts.budget_bytes = root_bytes + root_bytes / 3;
+    let t = v.renderer.targets(SIZE);
+    let (lo, hi) = v.tileset.bounds;
+    let c = cam([(lo[0] + hi[0]) / 2.0, hi[1] + 1500.0, hi[2] + 1500.0], 0.0, -30.0);
+    v.settle(&c, SIZE).unwrap();
+    let st = v.frame(&c, SIZE, Target::Offscreen(&t));
+    println!("budget {} bytes: {st:?}", v.opts.budget_bytes);
+    assert!(st.over_tau > 0 && st.max_rho_px > 1.0, "{st:?}");
+    assert_eq!(st.over_tau_budget, st.over_tau, "{st:?}");
+    assert!(st.resident_bytes <= v.opts.budget_bytes.max(root_bytes));
+    // With room, the same view is within τ.
+    v.opts.budget_bytes = 512 << 20;
+    v.settle(&c, SIZE).unwrap();
+    let st = v.frame(&c, SIZE, Target::Offscreen(&t));
+    assert_eq!((st.over_tau, st.over_tau_budget), (0, 0), "{st:?}");
 }
