@@ -632,7 +632,8 @@ mod tests {
         let mut worst: f64 = 0.0;
         for i in 0..200 {
             for j in 0..100 {
-                let (az, el) = (f64::from(i) * std::f64::consts::TAU / 200.0, (f64::from(j) / 99.0 - 0.5) * 3.14159);
+                let (az, el) =
+                    (f64::from(i) * std::f64::consts::TAU / 200.0, (f64::from(j) / 99.0 - 0.5) * std::f64::consts::PI);
                 let v = [el.cos() * az.cos(), el.sin(), el.cos() * az.sin()].map(|c| c * eps);
                 let q = [p[0] + v[0], p[1] + v[1], p[2] + v[2]];
                 let shift = ((q[0] / q[2] - p[0] / p[2]).powi(2) + (q[1] / q[2] - p[1] / p[2]).powi(2)).sqrt() * k;

@@ -607,9 +607,9 @@ fn a_split_at_full_morph_changes_no_pixel_with_lighting_on() {
             v.opts.look.lighting = lighting;
             let (a, pa) = draw_colour(&mut v, &t, &camera, &[(p, 0.0)]);
             let (b, pb) = draw_colour(&mut v, &t, &camera, &kids);
-            for i in 0..pa.len() {
+            for (i, (qa, qb)) in pa.iter().zip(&pb).enumerate() {
                 // Both show the surface (silhouettes may flip between triangulations).
-                if pa[i][3] != 1.0 || pb[i][3] != 1.0 {
+                if qa[3] != 1.0 || qb[3] != 1.0 {
                     continue;
                 }
                 let differs = (0..3).any(|k| a[4 * i + k].abs_diff(b[4 * i + k]) > 2);
