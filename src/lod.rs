@@ -259,6 +259,10 @@ pub struct LodView {
     /// carried forward): prefetch ranks by the larger ρ of the two eyes.
     /// `None` for a still camera.
     pub eye_ahead: Option<[f64; 3]>,
+    /// Where the eye will be next frame, if it moves: a chunk whose ρ will
+    /// pass τ by then splits now (its children resident), so the screen
+    /// error stays within τ however far a frame moves.
+    pub eye_next: Option<[f64; 3]>,
     /// Screen-space error tolerance τ, pixels.
     pub tau_px: f64,
     /// Morph schedule for the drawn chunks.
@@ -335,6 +339,16 @@ pub fn select(
     let mut stack: Vec<usize> = tree.roots.iter().rev().copied().collect();
     while let Some(n) = stack.pop() {
         if !visible(n) {
+            // Out of view now, but a turn can bring it in: a resident one
+            // about to split gets its children ahead of time too.
+            if resident(n) && view.eye_ahead.is_some() {
+                sel.kept.push(n);
+                let (rho_n, _) = predicted(n);
+                if rho_n > view.tau_px / 2.0 {
+                    let kids = tree.nodes[n].children.iter().filter(|&&c| !resident(c));
+                    sel.prefetch.extend(kids.map(|&c| (c, rho_n / 2.0)));
+                }
+            }
             continue;
         }
         if !resident(n) {
@@ -345,7 +359,10 @@ pub fn select(
         sel.touched.push(n);
         let node = &tree.nodes[n];
         let rho = screen_error(node.delta_m, distance_to_box(view.eye, node.min, node.max), view.k);
-        if rho > view.tau_px && !node.children.is_empty() {
+        // Split where ρ passes τ now or by the next frame: a fast camera
+        // then meets the children near the parent's shape (w ≈ 1), not past it.
+        let rho_next = view.eye_next.map_or(rho, |e| rho.max(rho_at(n, e)));
+        if rho_next > view.tau_px && !node.children.is_empty() {
             let mut all = true;
             for &c in &node.children {
                 if resident(c) {
@@ -448,6 +465,7 @@ mod tests {
             eye,
             k: screen_k(640.0, 60f64.to_radians()),
             eye_ahead: None,
+            eye_next: None,
             tau_px: tau,
             schedule: MorphSchedule::Bounded,
         }
@@ -614,7 +632,8 @@ mod tests {
         let mut worst: f64 = 0.0;
         for i in 0..200 {
             for j in 0..100 {
-                let (az, el) = (f64::from(i) * std::f64::consts::TAU / 200.0, (f64::from(j) / 99.0 - 0.5) * 3.14159);
+                let (az, el) =
+                    (f64::from(i) * std::f64::consts::TAU / 200.0, (f64::from(j) / 99.0 - 0.5) * std::f64::consts::PI);
                 let v = [el.cos() * az.cos(), el.sin(), el.cos() * az.sin()].map(|c| c * eps);
                 let q = [p[0] + v[0], p[1] + v[1], p[2] + v[2]];
                 let shift = ((q[0] / q[2] - p[0] / p[2]).powi(2) + (q[1] / q[2] - p[1] / p[2]).powi(2)).sqrt() * k;
@@ -683,6 +702,28 @@ mod tests {
         let sel = select(&tree, &v, resident, |_| true);
         assert!(sel.draws.iter().all(|d| level(d.node) == 0));
         assert!(sel.prefetch.is_empty(), "{:?}", sel.prefetch);
+    }
+
+    /// A chunk whose ρ passes τ by the next frame splits now; a resident
+    /// chunk out of view that is about to split has its children prefetched.
+    #[test]
+    fn the_next_frame_splits_early_and_out_of_view_chunks_prefetch() {
+        let tree = square_tree(3, 1000.0, 16.0);
+        let level = |n: usize| tree.nodes[n].key.level;
+        // The root within τ (ρ = 1.78 px) now, past it (2.23 px) a frame on.
+        let mut v = view([500.0, 5000.0, 500.0], 2.0);
+        assert!(select(&tree, &v, |_| true, |_| true).draws.iter().all(|d| level(d.node) == 0));
+        v.eye_next = Some([500.0, 4000.0, 500.0]);
+        let sel = select(&tree, &v, |_| true, |_| true);
+        assert!(sel.draws.iter().all(|d| level(d.node) == 1), "{:?}", sel.draws);
+        // Out of view: nothing drawn; with a motion the resident root's children are prefetched.
+        let v = view([500.0, 3000.0, 500.0], 2.0);
+        let root_only = |n: usize| n == 0;
+        assert!(select(&tree, &v, root_only, |_| false).prefetch.is_empty(), "still: nothing");
+        let v = LodView { eye_ahead: Some([500.0, 2900.0, 500.0]), ..v };
+        let sel = select(&tree, &v, root_only, |_| false);
+        assert!(sel.draws.is_empty() && sel.kept == vec![0]);
+        assert_eq!(sel.prefetch.iter().map(|p| p.0).collect::<Vec<_>>(), tree.nodes[0].children);
     }
 
     #[test]

@@ -76,7 +76,8 @@ fn main() -> Result<()> {
     let mut columns: [Vec<f64>; 4] = Default::default();
     for cam in &frames {
         let frustum = cam.frustum(aspect);
-        let view = LodView { eye: cam.eye, k, eye_ahead: None, tau_px: tau, schedule: MorphSchedule::Bounded };
+        let view =
+            LodView { eye: cam.eye, k, eye_ahead: None, eye_next: None, tau_px: tau, schedule: MorphSchedule::Bounded };
         let sel = lod::select(
             &ts.tree,
             &view,

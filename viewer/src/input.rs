@@ -216,8 +216,8 @@ mod tests {
         for (m, want) in cases {
             let mut c = cam();
             fly(&mut c, &HashSet::from([m]), 1.0, 5.0);
-            for a in 0..3 {
-                assert!((c.eye[a] - cam().eye[a] - want[a]).abs() < 1e-9, "{m:?}: {:?}", c.eye);
+            for (a, w) in want.iter().enumerate() {
+                assert!((c.eye[a] - cam().eye[a] - w).abs() < 1e-9, "{m:?}: {:?}", c.eye);
             }
         }
         let mut c = cam();

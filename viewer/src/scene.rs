@@ -307,10 +307,10 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
         if nrm.len() != pos.len() || uv.len() != pos.len() || uv1.len() != pos.len() || dy.len() != pos.len() {
             bail!("a primitive's attributes differ in length from its {} positions", pos.len());
         }
-        for i in 0..pos.len() {
+        for (i, &p) in pos.iter().enumerate() {
             let normal = nrm[i];
             out.vertices.push(Vertex {
-                pos: pos[i],
+                pos: p,
                 normal,
                 uv: uv[i],
                 morph_dy: dy[i],

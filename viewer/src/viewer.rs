@@ -276,11 +276,17 @@ impl Viewer {
     /// shift of any pixel: K carries the off-axis factor).
     pub fn select(&self, cam: &Camera, size: [u32; 2]) -> Selection {
         let k = lod::screen_k_bound([f64::from(size[0]), f64::from(size[1])], cam.hfov_deg.to_radians());
-        let eye_ahead = self.last_eye.filter(|&l| l != cam.eye && self.opts.lookahead_frames > 0.0).map(|l| {
-            let ahead = self.opts.lookahead_frames;
-            [0, 1, 2].map(|a| cam.eye[a] + ahead * (cam.eye[a] - l[a]))
-        });
-        let view = LodView { eye: cam.eye, k, eye_ahead, tau_px: self.opts.tau_px, schedule: self.opts.schedule };
+        let moved = self.last_eye.filter(|&l| l != cam.eye);
+        let ahead = |frames: f64| moved.map(|l| [0, 1, 2].map(|a| cam.eye[a] + frames * (cam.eye[a] - l[a])));
+        let eye_ahead = if self.opts.lookahead_frames > 0.0 { ahead(self.opts.lookahead_frames) } else { None };
+        let view = LodView {
+            eye: cam.eye,
+            k,
+            eye_ahead,
+            eye_next: ahead(1.0),
+            tau_px: self.opts.tau_px,
+            schedule: self.opts.schedule,
+        };
         let frustum = cam.frustum(f64::from(size[0]) / f64::from(size[1]));
         let nodes = &self.tileset.tree.nodes;
         lod::select(

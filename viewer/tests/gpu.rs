@@ -46,7 +46,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/mount_st_helens_30m.tif");
         let hf = terrachunk::dem::load(std::slice::from_ref(&dem), &Default::default()).unwrap();
         let valid = hf.heights.iter().map(|h| h.is_finite()).collect();
-        let dem = hf.heights.clone();
+        let heights = hf.heights.clone();
         build(&BuildOptions {
             inputs: vec![dem],
             out: dir.clone(),
@@ -57,7 +57,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         })
         .unwrap();
         let reference = Heights::from_leaves(&Tileset::open(&dir).unwrap());
-        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem })
+        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem: heights })
     })
     .lock()
     .unwrap_or_else(|e| e.into_inner())
@@ -607,9 +607,9 @@ fn a_split_at_full_morph_changes_no_pixel_with_lighting_on() {
             v.opts.look.lighting = lighting;
             let (a, pa) = draw_colour(&mut v, &t, &camera, &[(p, 0.0)]);
             let (b, pb) = draw_colour(&mut v, &t, &camera, &kids);
-            for i in 0..pa.len() {
+            for (i, (qa, qb)) in pa.iter().zip(&pb).enumerate() {
                 // Both show the surface (silhouettes may flip between triangulations).
-                if pa[i][3] != 1.0 || pb[i][3] != 1.0 {
+                if qa[3] != 1.0 || qb[3] != 1.0 {
                     continue;
                 }
                 let differs = (0..3).any(|k| a[4 * i + k].abs_diff(b[4 * i + k]) > 2);
@@ -682,7 +682,11 @@ fn the_normal_map_shades_by_the_dem_normals() {
     let cov: f64 = got.iter().zip(&want).map(|(a, b)| (a - mg) * (b - mw)).sum::<f64>() / n;
     let sd = |v: &[f64], m: f64| (v.iter().map(|a| (a - m).powi(2)).sum::<f64>() / n).sqrt();
     let r = cov / (sd(&got, mg) * sd(&want, mw));
-    println!("normal map: {} pixels, lit/unlit against the DEM's normals: correlation {r:.3}, spread {:.3}", got.len(), sd(&got, mg));
+    println!(
+        "normal map: {} pixels, lit/unlit against the DEM's normals: correlation {r:.3}, spread {:.3}",
+        got.len(),
+        sd(&got, mg)
+    );
     assert!(got.len() > 5000, "{} pixels", got.len());
     assert!(r > 0.8, "the shading does not follow the DEM normals: r = {r:.3}");
 }
@@ -714,7 +718,8 @@ fn modes_and_switches_draw_what_they_say() {
     v.opts.look.mode = Mode::Overlay;
     let (over, _) = draw(&mut v);
     let (olines, obg) = (count(&over, &is_line), count(&over, &magenta));
-    assert!(olines > covered / 20 && olines + obg < over.len() / 4 - covered / 2, "overlay: edges over shading");
+    let oshaded = over.len() / 4 - olines - obg;
+    assert!(olines > covered / 20 && oshaded > covered / 10, "overlay: {olines} edge and {oshaded} shaded pixels");
     v.opts.look.mode = Mode::Shaded;
     // One-sided: the sun below the horizon lights nothing that faces up.
     v.opts.look.sun = sun_direction(0.0, -89.0);
@@ -742,7 +747,7 @@ fn modes_and_switches_draw_what_they_say() {
 }
 
 /// A synthetic tileset 600 km wide (129 × 129 samples 4.7 km apart, the
-/// extent of California), 2 × 2 roots, built once.
+/// extent of California), 2 × 2 roots of four levels, built once.
 fn continent() -> &'static (tempfile::TempDir, PathBuf) {
     static C: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     C.get_or_init(|| {
@@ -766,7 +771,8 @@ fn continent() -> &'static (tempfile::TempDir, PathBuf) {
         let dem = tmp.path().join("continent.asc");
         std::fs::write(&dem, text).unwrap();
         let dir = tmp.path().join("continent");
-        let config = Config { max_error_m: 8.0, root_cells: Some(64), ..Config::default() };
+        // 8-cell leaves: four levels under each root.
+        let config = Config { max_error_m: 8.0, root_cells: Some(64), leaf_cells: Some(8), ..Config::default() };
         build_into(&dir, &dem, config, TextureSource::Generated);
         (tmp, dir)
     })
@@ -826,9 +832,13 @@ fn a_600_km_flythrough_keeps_the_screen_error_within_tau() {
             let within = stats.iter().filter(|s| s.max_rho_px <= tau * (1.0 + 1e-9)).count();
             let worst_late = stats[30..].iter().map(|s| s.max_rho_px).fold(0.0, f64::max);
             let worst = stats.iter().map(|s| s.max_rho_px).fold(0.0, f64::max);
+            let why = |f: fn(&terrachunk_view::viewer::FrameStats) -> usize| stats.iter().filter(|s| f(s) > 0).count();
             println!(
-                "600 km flythrough, prefetch {prefetch}, fade {fade}, τ = {tau}: {within} of {} frames within τ, worst ρ {worst:.3} px (after 1 s {worst_late:.3}), {blank} blank frames",
-                stats.len()
+                "600 km flythrough, prefetch {prefetch}, fade {fade}, τ = {tau}: {within} of {} frames within τ, worst ρ {worst:.3} px (after 1 s {worst_late:.3}), {blank} blank frames; frames with a chunk over τ loading {}, budget {}, morphing in {}",
+                stats.len(),
+                why(|s| s.over_tau_loading),
+                why(|s| s.over_tau_budget),
+                why(|s| s.over_tau_fading)
             );
             assert_eq!(blank, 0);
             results.push((prefetch, tau, within, worst_late, stats.len()));
@@ -876,4 +886,29 @@ fn several_roots_draw_from_the_first_frame_and_settle_without_holes() {
     let drawn = draw_capture(&mut v, &t, &c, &nodes);
     let holes = cracks(&drawn, &full, 2);
     assert!(holes.is_empty(), "{} holes, e.g. {:?}", holes.len(), &holes[..holes.len().min(5)]);
+}
+
+/// A memory budget too small for the cut leaves chunks above τ for good;
+/// the frame's statistics (the HUD's and the CSV's) say so and say why.
+#[test]
+fn a_budget_too_small_for_the_cut_is_reported_as_the_cause() {
+    let f = fixture();
+    let mut v = viewer(&f.dir, 1.0);
+    let root_bytes = v.resident_bytes();
+    // Room for the roots and one more chunk at most.
+    v.opts.budget_bytes = root_bytes + root_bytes / 3;
+    let t = v.renderer.targets(SIZE);
+    let (lo, hi) = v.tileset.bounds;
+    let c = cam([(lo[0] + hi[0]) / 2.0, hi[1] + 1500.0, hi[2] + 1500.0], 0.0, -30.0);
+    v.settle(&c, SIZE).unwrap();
+    let st = v.frame(&c, SIZE, Target::Offscreen(&t));
+    println!("budget {} bytes: {st:?}", v.opts.budget_bytes);
+    assert!(st.over_tau > 0 && st.max_rho_px > 1.0, "{st:?}");
+    assert_eq!(st.over_tau_budget, st.over_tau, "{st:?}");
+    assert!(st.resident_bytes <= v.opts.budget_bytes.max(root_bytes));
+    // With room, the same view is within τ.
+    v.opts.budget_bytes = 512 << 20;
+    v.settle(&c, SIZE).unwrap();
+    let st = v.frame(&c, SIZE, Target::Offscreen(&t));
+    assert_eq!((st.over_tau, st.over_tau_budget), (0, 0), "{st:?}");
 }
