@@ -375,6 +375,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
                 );
             }
+            for s in &r.slivers {
+                println!("promise 8 not kept: {s}");
+            }
             if r.failures.is_empty() {
                 println!("OK");
                 Ok(ExitCode::SUCCESS)

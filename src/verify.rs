@@ -43,6 +43,7 @@ use serde_json::Value;
 use crate::dem::{self, LoadOptions};
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
+use crate::mesh::quality::{self, ShapeSummary};
 use crate::morph::{LocatorIndex, SurfaceLocator, barycentric, points_near_triangle};
 use crate::output::gltf::{Imported, import};
 use crate::output::tileset::{TileExtras, TilesetExtras};
@@ -348,6 +349,8 @@ pub struct LevelCheck {
     pub max_error_m: f64,
     /// Largest morph mismatch, metres.
     pub max_morph_gap_m: f64,
+    /// The surface triangles' shapes in plan, as written (promise 8).
+    pub shape: ShapeSummary,
 }
 
 /// What verify found.
@@ -359,6 +362,10 @@ pub struct VerifyReport {
     pub borders_checked: usize,
     /// Problems, each naming the chunk.
     pub failures: Vec<String>,
+    /// Levels that break promise 8 (more than 0.1 % of their triangles
+    /// slivers), each naming the level: reported apart from `failures`,
+    /// since the greedy mesher does not keep that promise on every DEM.
+    pub slivers: Vec<String>,
     /// Texture measurements (absent for an untextured tileset).
     pub texture: Option<TextureCheck>,
 }
@@ -513,6 +520,8 @@ struct Findings {
     morph_gap_m: f64,
     /// Its tile's T_g and why that may exceed the bound (textured tilesets).
     texel: Option<(f64, Texel)>,
+    /// Its surface triangles' shapes.
+    shape: ShapeSummary,
     /// What failed.
     problems: Vec<String>,
 }
@@ -610,7 +619,9 @@ impl Walk<'_> {
             problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
         }
         let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
-        Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, problems }
+        let plan: Vec<[f64; 2]> = c.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
+        let shape = quality::summarize(&plan, &c.surface.triangles);
+        Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, shape, problems }
     }
 }
 
@@ -695,9 +706,15 @@ fn finish_level(extras: &TilesetExtras, level: &BTreeMap<ChunkKey, Visited>, rep
         l.delta_m = f.delta_m;
         l.max_error_m = l.max_error_m.max(f.error_m);
         l.max_morph_gap_m = l.max_morph_gap_m.max(f.morph_gap_m);
+        l.shape = l.shape.merge(f.shape);
         for p in &f.problems {
             report.failures.push(format!("chunk {}: {p}", name(*k)));
         }
+    }
+    if let Some(&k) = level.keys().next()
+        && let Some(p) = report.levels.get(&k.level).and_then(|l| sliver_problem(&l.shape))
+    {
+        report.slivers.push(format!("level {}: {p}", k.level));
     }
     for (k, v) in level {
         let Some(c) = &v.borders else { continue };
@@ -717,6 +734,24 @@ fn finish_level(extras: &TilesetExtras, level: &BTreeMap<ChunkKey, Visited>, rep
             }
         }
     }
+}
+
+/// Promise 8 for one level: what is wrong if more than
+/// [`quality::SLIVER_SHARE`] of its triangles are slivers.
+fn sliver_problem(s: &ShapeSummary) -> Option<String> {
+    (!s.meets_promise()).then(|| {
+        format!(
+            "{} of {} triangles ({:.3} %) are slivers (aspect over {}), more than {} % ({} over {}; smallest angle {:.2e}°)",
+            s.slivers,
+            s.triangles,
+            100.0 * s.sliver_share(),
+            quality::SLIVER_ASPECT,
+            100.0 * quality::SLIVER_SHARE,
+            s.needles,
+            quality::NEEDLE_ASPECT,
+            s.min_angle_deg
+        )
+    })
 }
 
 /// The texture of one chunk: texel size against δ/τ_max and the source,
