@@ -38,6 +38,9 @@ impl fmt::Display for VerifyReport {
                 t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
             )?;
         }
+        for s in &r.slivers {
+            writeln!(f, "promise 8 not kept: {s}")?;
+        }
         if r.failures.is_empty() {
             writeln!(f, "OK")?;
         }

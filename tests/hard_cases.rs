@@ -29,12 +29,15 @@
 //! | ETOPO2 France–Italy at 1 m: a line sample exactly δ off beside a cut corner | verifies (was refused as a mesher bug) |
 //! | Mount St Helens `quantize` at 5 m, 32-cell leaves: a sample beside a parent edge | verifies, no triangle turned over |
 //! | Sierra 3 × 3 `quantize` at 5 m, 16-cell leaves (`../shared`, ignored): a fan of nearly parallel parent edges | verifies, no triangle turned over |
+//! | flat sea at 0 m with islands and a straight coast; tidal flats at 0–3 m beside hills; a 38° N geographic coast (positions tens of km from the chunk origin) — each in every `--compress` mode | verifies (promise 8, ≤ 0.1 % slivers per level: ignored test, not met yet) |
+//! | whole-metre terraces on a gentle slope, in every `--compress` mode | verifies, ≤ 0.1 % of each level's triangles with aspect over 100, none over 10³ |
 
 use std::path::{Path, PathBuf};
 
-use terrachunk::config::Config;
+use terrachunk::config::{Compress, Config};
+use terrachunk::mesh::quality::ShapeSummary;
 use terrachunk::pipeline::{LevelReport, Report, build};
-use terrachunk::verify::VerifyReport;
+use terrachunk::verify::{VerifyReport, verify};
 
 use crate::common::{
     all_files, assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, with_config, write_asc,
@@ -827,4 +830,161 @@ fn a_fan_of_nearly_parallel_parent_edges_turns_no_child_triangle_over() {
     use terrachunk::config::Compress;
     let (_tmp, out, _) = build_sierra_3x3(Config { compress: Compress::Quantize, ..config(5.0, 16) });
     verified(&out);
+}
+
+// ------------------------------------------------------- well-shaped meshes
+
+/// Every `--compress` mode: each writes positions differently (f32
+/// chunk-local, or a quantized lattice), so each can turn a thin triangle
+/// over in its own way.
+const EVERY_COMPRESS: [Compress; 4] = [Compress::None, Compress::Quantize, Compress::Meshopt, Compress::MeshoptV1];
+
+/// Builds `dem` at default settings in every compress mode and holds each
+/// tileset to `verify`. Returns each mode's shapes, level by level.
+#[track_caller]
+fn verifies_in_every_mode(dem: &Path) -> Vec<(Compress, Vec<ShapeSummary>)> {
+    EVERY_COMPRESS
+        .iter()
+        .map(|&compress| {
+            let tmp = tempfile::tempdir().unwrap();
+            let out = tmp.path().join("out");
+            let cfg = Config { compress, ..Config::default() };
+            build(&with_config(dem, &out, cfg)).unwrap_or_else(|e| panic!("{} {compress:?}: {e}", dem.display()));
+            let v = verify(&out, None).unwrap();
+            assert!(v.failures.is_empty(), "{} {compress:?}:\n{}", dem.display(), v.failures.join("\n"));
+            let shapes: Vec<ShapeSummary> = v.levels.values().map(|l| l.shape).collect();
+            assert!(shapes.iter().map(|s| s.triangles).sum::<usize>() > 0);
+            (compress, shapes)
+        })
+        .collect()
+}
+
+/// Promise 8 on every level of every mode: at most 0.1 % of a level's
+/// triangles with aspect over 100, none over 10³.
+#[track_caller]
+fn assert_well_shaped(dem: &Path, shapes: &[(Compress, Vec<ShapeSummary>)]) {
+    for (compress, levels) in shapes {
+        for (level, s) in levels.iter().enumerate() {
+            assert!(s.meets_promise() && s.needles == 0, "{} {compress:?} level {level}: {s:?}", dem.display());
+        }
+    }
+}
+
+/// Hills of some tens of metres, never below 1 m.
+fn land(i: usize, j: usize) -> f64 {
+    let (x, z) = (j as f64, i as f64);
+    25.0 + 18.0 * (x / 19.0).sin() * (z / 27.0).cos() + 6.0 * ((x + 2.0 * z) / 9.0).sin()
+}
+
+/// Flat sea at exactly 0 m west of a long straight coastline (not along an
+/// axis), with round islands in it; hills on land. Greedy TINs cover such
+/// water with a few huge triangles, which every cut line and every sample
+/// on the coast or an island shreds into slivers.
+fn coast_with_islands(i: usize, j: usize) -> f64 {
+    let (x, z) = (j as f64, i as f64);
+    let coast = 150.0 + 0.31 * z;
+    let island = |cx: f64, cz: f64, r: f64| {
+        let d2 = (x - cx).powi(2) + (z - cz).powi(2);
+        (12.0 * (1.0 - d2 / (r * r))).max(0.0)
+    };
+    if x >= coast {
+        land(i, j).max(1.0 + 0.2 * (x - coast))
+    } else {
+        island(40.0, 60.0, 6.0).max(island(95.0, 190.0, 4.5)).max(island(120.0, 30.0, 3.0))
+    }
+}
+
+#[test]
+fn flat_sea_with_islands_and_a_straight_coast_verifies_in_every_compress_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "coast.asc", 257, 257, coast_with_islands);
+    verifies_in_every_mode(&dem);
+}
+
+#[test]
+fn whole_metre_terraces_on_a_gentle_slope_are_well_shaped() {
+    // 1 m steps every 40–90 cells, with a slight wave so the step edges
+    // are not straight lines of the grid.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "terraces.asc", 257, 257, |i, j| {
+        let (x, z) = (j as f64, i as f64);
+        (100.0 + 0.017 * x + 0.011 * z + 0.6 * (x / 37.0).sin()).round()
+    });
+    let shapes = verifies_in_every_mode(&dem);
+    assert_well_shaped(&dem, &shapes);
+}
+
+/// A bay of tidal flats at whole metres 0–3 (salt ponds at one height,
+/// channels at 0) opening to the sea, beside hills up to 300 m.
+fn bay_with_tidal_flats(i: usize, j: usize) -> f64 {
+    let (x, z) = (j as f64, i as f64);
+    if x > 170.0 + 20.0 * (z / 40.0).sin() {
+        return 20.0 + 280.0 * ((x - 170.0) / 90.0).min(1.0) * (0.6 + 0.4 * (z / 23.0).sin().abs());
+    }
+    let flats = 1.5 + 1.5 * (x / 31.0).sin() * (z / 17.0).cos();
+    let pond = ((x / 24.0).floor() + (z / 24.0).floor()) as i64 % 3 == 0;
+    let channel = ((x - 0.8 * z) / 6.0).sin().abs() < 0.15;
+    if z < 20.0 || channel {
+        0.0
+    } else if pond {
+        2.0
+    } else {
+        flats.round().clamp(0.0, 3.0)
+    }
+}
+
+#[test]
+fn a_bay_of_tidal_flats_beside_hills_verifies_in_every_compress_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "bay.asc", 257, 257, bay_with_tidal_flats);
+    verifies_in_every_mode(&dem);
+}
+
+/// A geographic (WGS 84) int16 GeoTIFF of `w × h` samples `step_deg` apart,
+/// its first sample's corner at `corner` (longitude, latitude).
+fn write_geographic_i16(path: &Path, w: u32, h: u32, corner: [f64; 2], step_deg: f64, data: &[i16]) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::GrayI16>(w, h).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelPixelScaleTag, &[step_deg, step_deg, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).unwrap();
+    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326];
+    e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
+    img.write_data(data).unwrap();
+}
+
+/// A coast at 38° N on a geographic grid 88 × 83 km wide (600 × 450 samples
+/// 6″ apart, cells 146 × 185 m): whole-metre tidal flats and sea at 0 m, so
+/// the coarse levels hold triangles kilometres long whose f32 chunk-local
+/// positions lie tens of kilometres from the chunk origin, where a sliver
+/// a fraction of a millimetre wide turns over when rounded.
+#[test]
+fn a_geographic_coast_at_38_north_far_from_the_chunk_origin_verifies_in_every_compress_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (600usize, 450usize);
+    let data: Vec<i16> = (0..h)
+        .flat_map(|i| (0..w).map(move |j| (i, j)))
+        .map(|(i, j)| {
+            bay_with_tidal_flats(i * 257 / h, j * 257 / w).max(coast_with_islands(i / 2, j / 3)).round() as i16
+        })
+        .collect();
+    let dem = tmp.path().join("coast_38n.tif");
+    write_geographic_i16(&dem, w as u32, h as u32, [-122.5, 38.4], 1.0 / 600.0, &data);
+    let shapes = verifies_in_every_mode(&dem);
+    assert!(shapes.iter().all(|(_, levels)| levels.len() >= 2), "the coast needs more than one level: {shapes:?}");
+}
+
+/// Promise 8 on the coasts and flats above. The greedy mesher breaks it
+/// there (slivers against long fixed edges and cut lines at every level),
+/// so this is run on demand until a mesher that keeps it is the default.
+#[test]
+#[ignore = "the greedy mesher makes 0.3–6 % slivers per level on these coasts (promise 8)"]
+fn flat_coasts_and_tidal_flats_keep_promise_8() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, f) in [("coast.asc", coast_with_islands as fn(usize, usize) -> f64), ("bay.asc", bay_with_tidal_flats)] {
+        let dem = write_asc(tmp.path(), name, 257, 257, f);
+        assert_well_shaped(&dem, &verifies_in_every_mode(&dem));
+    }
 }

@@ -488,25 +488,27 @@ pub fn ladder(o: &LadderOptions) -> Result<Vec<Row>, BenchError> {
                     leaves.errors.max_error_m,
                     seconds[6]
                 );
-                rows.push(Row {
-                    tool: "terrachunk".into(),
-                    max_error_m: e,
-                    levels: Some(last.levels.len()),
-                    chunks: Some(last.levels.iter().map(|l| l.chunks).sum()),
-                    triangles: Some(last.levels.iter().map(|l| l.triangles).sum()),
-                    leaf_triangles: Some(leaves.leaf_triangles),
-                    vertices: Some(last.levels.iter().map(|l| l.vertices).sum()),
-                    bytes: Some(last.bytes),
-                    bytes_per_sample: Some(last.bytes_per_sample),
-                    measured_max_error_m: Some(leaves.errors.max_error_m),
-                    measured_rms_error_m: Some(leaves.errors.rms_error_m),
-                    uncovered_samples: Some(leaves.errors.uncovered_samples),
-                    seconds: seconds.map(Some),
-                    peak_rss_bytes: reports.iter().filter_map(|r| r.peak_rss_bytes).max(),
-                    threads: last.threads,
-                    ..base.clone()
-                }
-                .with_shape(&leaves.shape));
+                rows.push(
+                    Row {
+                        tool: "terrachunk".into(),
+                        max_error_m: e,
+                        levels: Some(last.levels.len()),
+                        chunks: Some(last.levels.iter().map(|l| l.chunks).sum()),
+                        triangles: Some(last.levels.iter().map(|l| l.triangles).sum()),
+                        leaf_triangles: Some(leaves.leaf_triangles),
+                        vertices: Some(last.levels.iter().map(|l| l.vertices).sum()),
+                        bytes: Some(last.bytes),
+                        bytes_per_sample: Some(last.bytes_per_sample),
+                        measured_max_error_m: Some(leaves.errors.max_error_m),
+                        measured_rms_error_m: Some(leaves.errors.rms_error_m),
+                        uncovered_samples: Some(leaves.errors.uncovered_samples),
+                        seconds: seconds.map(Some),
+                        peak_rss_bytes: reports.iter().filter_map(|r| r.peak_rss_bytes).max(),
+                        threads: last.threads,
+                        ..base.clone()
+                    }
+                    .with_shape(&leaves.shape),
+                );
             }
             if o.single_tin {
                 let s = single_tin_timed(&p.hf, e, o.base.warmup, o.base.runs)?;
@@ -694,27 +696,29 @@ pub fn import_peers(
         let mut secs = [None; 7];
         secs[2] = Some(seconds);
         secs[6] = Some(seconds);
-        rows.push(Row {
-            tool: table::clean(f[0]),
-            dem: label.clone(),
-            width: hf.width,
-            height: hf.height,
-            samples: hf.width * hf.height,
-            max_error_m,
-            levels: Some(1),
-            chunks: Some(1),
-            triangles: Some(m.triangles),
-            leaf_triangles: Some(m.triangles),
-            vertices: Some(m.vertices),
-            measured_max_error_m: Some(m.errors.max_error_m),
-            measured_rms_error_m: Some(m.errors.rms_error_m),
-            uncovered_samples: Some(m.errors.uncovered_samples),
-            seconds: secs,
-            runs,
-            threads: 1,
-            ..Row::default()
-        }
-        .with_shape(&m.shape));
+        rows.push(
+            Row {
+                tool: table::clean(f[0]),
+                dem: label.clone(),
+                width: hf.width,
+                height: hf.height,
+                samples: hf.width * hf.height,
+                max_error_m,
+                levels: Some(1),
+                chunks: Some(1),
+                triangles: Some(m.triangles),
+                leaf_triangles: Some(m.triangles),
+                vertices: Some(m.vertices),
+                measured_max_error_m: Some(m.errors.max_error_m),
+                measured_rms_error_m: Some(m.errors.rms_error_m),
+                uncovered_samples: Some(m.errors.uncovered_samples),
+                seconds: secs,
+                runs,
+                threads: 1,
+                ..Row::default()
+            }
+            .with_shape(&m.shape),
+        );
     }
     std::fs::create_dir_all(out).map_err(|source| BenchError::Io { path: out.into(), source })?;
     table::write(&out.join("bench.csv"), &rows, true)?;

@@ -176,7 +176,12 @@ impl Row {
 
     /// The shape columns from a summary of the finest surface.
     pub fn with_shape(self, s: &crate::mesh::quality::ShapeSummary) -> Row {
-        Row { sliver_share: Some(s.sliver_share()), needles: Some(s.needles), min_angle_deg: Some(s.min_angle_deg), ..self }
+        Row {
+            sliver_share: Some(s.sliver_share()),
+            needles: Some(s.needles),
+            min_angle_deg: Some(s.min_angle_deg),
+            ..self
+        }
     }
 
     /// Median total seconds, the time the plot shows.

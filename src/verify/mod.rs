@@ -55,6 +55,7 @@ pub use read::{
 };
 
 use crate::dem::{self, LoadOptions};
+use crate::mesh::quality::{self, ShapeSummary};
 use crate::output::tileset::TilesetExtras;
 use crate::quadtree::ChunkKey;
 use border::{border_record, compare_border};
@@ -94,6 +95,8 @@ pub struct LevelCheck {
     pub max_error_m: f64,
     /// Largest morph mismatch, metres.
     pub max_morph_gap_m: f64,
+    /// The surface triangles' shapes in plan, as written (promise 8).
+    pub shape: ShapeSummary,
 }
 
 /// What verify found.
@@ -105,6 +108,10 @@ pub struct VerifyReport {
     pub borders_checked: usize,
     /// Problems, each naming the chunk.
     pub failures: Vec<String>,
+    /// Levels that break promise 8 (more than 0.1 % of their triangles
+    /// slivers), each naming the level: reported apart from `failures`,
+    /// since the greedy mesher does not keep that promise on every DEM.
+    pub slivers: Vec<String>,
     /// Texture measurements (absent for an untextured tileset).
     pub texture: Option<TextureCheck>,
 }
@@ -232,6 +239,8 @@ struct Findings {
     morph_gap_m: f64,
     /// Its tile's T_g and why that may exceed the bound (textured tilesets).
     texel: Option<(f64, Texel)>,
+    /// Its surface triangles' shapes.
+    shape: ShapeSummary,
     /// What failed.
     problems: Vec<String>,
 }
@@ -307,7 +316,7 @@ impl Walk<'_> {
         if !checks::finite(c) {
             // Every measure below would read NaN as "no error".
             problems.extend(checks::not_finite(c));
-            return Findings { delta_m: c.delta_m, error_m: f64::INFINITY, morph_gap_m: 0.0, texel: None, problems };
+            return Findings { delta_m: c.delta_m, error_m: f64::INFINITY, morph_gap_m: 0.0, texel: None, shape: ShapeSummary::default(), problems };
         }
         checks::normals(c, &mut problems);
         let has_children = !tile.children.is_empty();
@@ -330,8 +339,28 @@ impl Walk<'_> {
             problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
         }
         let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
-        Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, problems }
+        let plan: Vec<[f64; 2]> = c.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
+        let shape = quality::summarize(&plan, &c.surface.triangles);
+        Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, shape, problems }
     }
+}
+
+/// Promise 8 for one level: what is wrong if more than
+/// [`quality::SLIVER_SHARE`] of its triangles are slivers.
+fn sliver_problem(s: &ShapeSummary) -> Option<String> {
+    (!s.meets_promise()).then(|| {
+        format!(
+            "{} of {} triangles ({:.3} %) are slivers (aspect over {}), more than {} % ({} over {}; smallest angle {:.2e}°)",
+            s.slivers,
+            s.triangles,
+            100.0 * s.sliver_share(),
+            quality::SLIVER_ASPECT,
+            100.0 * quality::SLIVER_SHARE,
+            s.needles,
+            quality::NEEDLE_ASPECT,
+            s.min_angle_deg
+        )
+    })
 }
 
 /// One level's findings in key order (as the tileset lists its chunks),
@@ -355,9 +384,15 @@ fn finish_level(extras: &TilesetExtras, level: &BTreeMap<ChunkKey, Visited>, rep
         l.delta_m = f.delta_m;
         l.max_error_m = l.max_error_m.max(f.error_m);
         l.max_morph_gap_m = l.max_morph_gap_m.max(f.morph_gap_m);
+        l.shape = l.shape.merge(f.shape);
         for p in &f.problems {
             report.failures.push(format!("chunk {}: {p}", name(*k)));
         }
+    }
+    if let Some(&k) = level.keys().next()
+        && let Some(p) = report.levels.get(&k.level).and_then(|l| sliver_problem(&l.shape))
+    {
+        report.slivers.push(format!("level {}: {p}", k.level));
     }
     for (k, v) in level {
         let Some(c) = &v.borders else { continue };
