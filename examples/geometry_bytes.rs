@@ -1,5 +1,5 @@
-//! Where a tileset's geometry bytes go, per stream: the figures of README's
-//! "Compression" section.
+//! Where a tileset's geometry bytes go, per stream: the figures of
+//! docs/compression.md.
 //!
 //!     cargo run --release --example geometry_bytes -- OUT_DIR [--level 0..=3]
 //!

@@ -67,7 +67,7 @@ pub struct Config {
     /// levels above the leaves: each level binds every level below it to
     /// its edges, and fewer of them leave the leaves fewer triangles and the
     /// tileset fewer bytes (California's 4097² crop at 5 m: 1.239 → 1.0×
-    /// pydelatin's leaf triangles with 512, README "Top-level chunks"), at
+    /// pydelatin's leaf triangles with 512, docs/settings.md, "Top-level chunks"), at
     /// the cost of a far view that draws all the top-level chunks at their
     /// δ. Default: unset, one top-level chunk (two or more only where the
     /// grid is at least 1.5 times as wide as tall, or tall as wide).
@@ -78,14 +78,14 @@ pub struct Config {
     /// leaves' footprint and halve δ, so that every δ above doubles and the
     /// top chunks get sparse. A chunk of more than 65 535 vertices has u32
     /// indices, the others u16. Range: 65 535..=16 777 215. Default
-    /// [`MAX_CHUNK_VERTICES`] (README, "Settings").
+    /// [`MAX_CHUNK_VERTICES`] (docs/settings.md).
     pub max_chunk_vertices: u32,
     /// Which levels the mesher thins after its greedy insertion (step 5:
     /// free vertices the finished TIN no longer needs are collapsed onto a
     /// neighbour where every sample stays within δ). Default `leaves` (the
     /// deepest level: the finest surface, nearly as fast as none); `all`
     /// also thins every coarser level (fewer triangles and bytes over all
-    /// levels, about a third more meshing time); `none` (README, "Thinning").
+    /// levels, about a third more meshing time); `none` (docs/settings.md, "Thinning").
     pub thin: Thin,
     /// How each chunk's triangles are ordered for the GPU's post-transform
     /// vertex cache (meshoptimizer). Default: unset, which means `strip`
@@ -160,13 +160,12 @@ pub enum Mesher {
 /// hold, so every chunk stays small enough to cull and page finely. A dense
 /// top chunk of rough ground at a small error then makes refine levels,
 /// which keep the top of the tree coarse for its footprint. Allowing
-/// 2^20 − 1 (tried as the default for one stop) dropped them: California
+/// 2^20 − 1 drops them: California
 /// at 1 m in 7 levels and 10 922 chunks instead of 9 and 27 270, 11 % fewer
 /// surface vertices and 15 % fewer bytes, but every δ above the leaves
 /// then sat on a footprint four times wider, and the viewer's cut along
 /// `docs/flythrough_california.json` drew 3.6 times the triangles (1.56 M
-/// against 428 k) and 3.3 times the file bytes per frame (README,
-/// "Settings"). Larger limits stay a setting.
+/// against 428 k) and 3.3 times the file bytes per frame (docs/settings.md). Larger limits stay a setting.
 pub const MAX_CHUNK_VERTICES: u32 = 65_535;
 
 /// The most worker threads a build may ask for: more than any machine's
@@ -197,11 +196,11 @@ pub fn dense_leaf_cells(max_vertices: u32) -> u32 {
 
 /// The octahedral bits of `meshopt-v1` normals: the fewest whose decoded
 /// normals stay within 1° of the exact ones (0.71° worst on Fuji, 1.45° at
-/// 7 bits; README, "Compression").
+/// 7 bits; docs/compression.md).
 pub const NORMAL_BITS_V1: u32 = 8;
 
-/// How a chunk's vertex data is stored. Measured figures are in README,
-/// "Compression".
+/// How a chunk's vertex data is stored. Measured figures are in
+/// docs/compression.md.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Compress {

@@ -46,7 +46,7 @@ fn every_output_mode_matches_its_golden_fingerprints() {
         ("meshopt-v1", Compress::MeshoptV1),
     ] {
         let out = tmp.path().join(name);
-        let cfg = Config { max_error_m: 20.0, threads: 2, compress, ..Config::default() };
+        let cfg = Config { max_error_m: 2.0, leaf_cells: Some(32), threads: 2, compress, ..Config::default() };
         build(&with_config(&dem, &out, cfg)).unwrap_or_else(|e| panic!("{name}: {e}"));
         let text = fingerprints(&out);
         assert!(text.lines().count() > 5, "{name}: {text}");

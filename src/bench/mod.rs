@@ -608,14 +608,17 @@ fn single_tin_row(base: &Row, e: f64, s: &SingleTin) -> Row {
 /// Redraws `dir/bench.png` and `dir/bench.svg` from `dir/bench.csv`; a
 /// build without the `plots` feature says it cannot.
 pub fn replot(dir: &Path) -> Result<(), BenchError> {
-    let rows = table::read(&dir.join("bench.csv"))?;
-    #[cfg(feature = "plots")]
-    return plot::plot(&rows, &dir.join("bench.png"), &dir.join("bench.svg"));
-    #[cfg(not(feature = "plots"))]
-    {
-        let _ = rows;
-        Err(BenchError::Plot("this terrachunk was built without the `plots` feature".into()))
-    }
+    draw(&table::read(&dir.join("bench.csv"))?, dir)
+}
+
+#[cfg(feature = "plots")]
+fn draw(rows: &[table::Row], dir: &Path) -> Result<(), BenchError> {
+    plot::plot(rows, &dir.join("bench.png"), &dir.join("bench.svg"))
+}
+
+#[cfg(not(feature = "plots"))]
+fn draw(_: &[table::Row], _: &Path) -> Result<(), BenchError> {
+    Err(BenchError::Plot("this terrachunk was built without the `plots` feature".into()))
 }
 
 /// Writes the grid a benchmark of `dem` with `cut` runs on as `.npy`

@@ -1,5 +1,5 @@
 //! What a viewer draws along a flythrough, with every chunk resident: the
-//! cost side of a tileset's chunk size (README, "Chunk size").
+//! cost side of a tileset's chunk size (docs/settings.md, "Chunk size").
 //!
 //!     cargo run --release -p terrachunk-view --example cut_cost -- DIR FLYTHROUGH.json [TAU] [WxH]
 //!
