@@ -28,6 +28,7 @@ use crate::output::tileset::{GridSize, MorphConvention, TileRecord, TilesetExtra
 use crate::progress;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
+use crate::shard::{FixedPlan, PartBuilt, TreePart};
 use crate::texture::source::{generate, generated_to_px, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureError, TextureExtras, TextureSource, Texturer};
 
@@ -340,6 +341,60 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     Ok(report)
 }
 
+/// The tree [`build`] would plan for `opts`, fixed so that the jobs of a
+/// sharded build ([`crate::shard`]) all build the same one: the grid's size,
+/// the leaf width and refine levels the estimate chooses, and whether lone
+/// chunks fill by parts. `build` adds a refine level when a chunk turns out
+/// too dense; a job cannot, and fails instead ([`crate::shard`] says so).
+pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
+    opts.config.validate()?;
+    let cfg = &opts.config;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    let filled = void_fill(&hf);
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let to_px = match &opts.texture {
+        TextureSource::None => None,
+        TextureSource::Image(path) => Some(load_image(path, &hf)?.to_px),
+        TextureSource::Generated => Some(generated_to_px(&hf, cfg)),
+    };
+    let Planned { mut estimate, leaf_cells, refine } = plan_tree(&hf, &grid, cfg, to_px);
+    let tree = estimate.tree(leaf_cells, refine);
+    let lone_parts = lone_parts(&tree, &mut estimate);
+    Ok(FixedPlan { grid: [hf.width, hf.height], leaf_cells, refine_levels: refine, lone_parts })
+}
+
+/// Builds one job's part of the fixed tree `plan` into `dir` (which must
+/// not exist yet): its chunks' files, and what the index needs from them.
+/// The chunks are byte for byte those [`build`] writes for the same
+/// options and tree, whatever the part and the thread count.
+pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &Path) -> Result<PartBuilt, BuildError> {
+    opts.config.validate()?;
+    let cfg = &opts.config;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
+    pool.install(|| {
+        let filled = void_fill(&hf);
+        let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+        let colour = match &opts.texture {
+            TextureSource::None => None,
+            TextureSource::Image(path) => Some(load_image(path, &hf)?),
+            TextureSource::Generated => Some(generate(&hf, filled.as_deref(), cfg)?),
+        };
+        let tree = plan.tree(cfg);
+        std::fs::create_dir_all(dir).map_err(|source| BuildError::Io { path: dir.into(), source })?;
+        let (mut report, records, texture) =
+            build_levels(&hf, &grid, &tree, colour.as_ref(), opts, dir, plan.lone_parts, Some(part))?;
+        report.threads = threads;
+        report.peak_rss_bytes = peak_rss();
+        let mut extras = tileset_extras(&hf, opts, &tree);
+        extras.texture = texture;
+        Ok(PartBuilt { report, records, extras })
+    })
+}
+
 type Built = (Report, ChunkTree, Vec<TileRecord>, Option<TextureExtras>, [Duration; 3]);
 
 fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
@@ -384,7 +439,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         let discarded = attempts.elapsed();
         let lone_parts = lone_parts(&tree, &mut estimate);
-        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts) {
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts, None) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.refine_estimated = estimated;
@@ -442,6 +497,7 @@ fn build_levels(
     opts: &BuildOptions,
     tmp: &Path,
     lone_parts: bool,
+    part: Option<&TreePart>,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
@@ -465,6 +521,7 @@ fn build_levels(
         },
         texturer: texturer.as_ref(),
         lone_parts,
+        part,
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
@@ -555,6 +612,9 @@ fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError>
 /// small error, at most `max_chunk_vertices` each, is the worst case.
 const LEVEL_FIRST_CHUNKS: usize = 16;
 
+/// The meshes of a subtree job's ancestors, each with whether it is a leaf.
+type AncestorMeshes = std::collections::BTreeMap<ChunkKey, (ChunkMesh, bool)>;
+
 /// What one chunk adds to the report and the index.
 struct BuiltChunk {
     record: TileRecord,
@@ -588,6 +648,8 @@ struct Run<'a> {
     texturer: Option<&'a Texturer<'a>>,
     /// The lone chunks are filled by parts ([`lone_parts`]).
     lone_parts: bool,
+    /// One job's part of the tree (a sharded build), or the whole tree.
+    part: Option<&'a TreePart>,
     timers: Timers,
     bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -616,6 +678,9 @@ impl Run<'_> {
     /// parallel: a chunk's mesh lives only while its children are built, so
     /// memory holds a few root-to-leaf paths rather than whole levels.
     fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
+        if let Some(TreePart::Under(roots)) = self.part {
+            return self.under(roots);
+        }
         let tree = self.tree;
         let level_first = (0..=tree.depth())
             .take_while(|&l| {
@@ -626,8 +691,8 @@ impl Run<'_> {
             .count();
         let mut done = Vec::new();
         // (parent mesh, its children to build)
-        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
-            vec![(None, tree.roots().into_iter().filter(|&k| self.worth_building(k)).collect())];
+        let roots = tree.roots().into_iter().filter(|&k| self.in_part(k) && self.worth_building(k)).collect();
+        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> = vec![(None, roots)];
         // A level's chunks are textured and written while the next level is
         // meshed: its meshes are all the next level needs (the root alone
         // would otherwise keep the other threads waiting while it writes).
@@ -689,12 +754,82 @@ impl Run<'_> {
         self.failed.store(true, Ordering::Relaxed);
     }
 
-    /// The children of a chunk that are worth building.
+    /// The children of a chunk that are worth building (and that this
+    /// job's part of the tree holds).
     fn kids(&self, key: ChunkKey, leaf: bool) -> Vec<ChunkKey> {
         match leaf {
             true => Vec::new(),
-            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+            false => {
+                self.tree.children(key).into_iter().filter(|&c| self.in_part(c) && self.worth_building(c)).collect()
+            }
         }
+    }
+
+    /// Whether chunk `k` is this job's to write: below the shard level for
+    /// the job above the shards; every chunk otherwise (a subtree job starts
+    /// from its own roots, [`Run::under`]).
+    fn in_part(&self, k: ChunkKey) -> bool {
+        match self.part {
+            Some(TreePart::Above(level)) => k.level < *level,
+            _ => true,
+        }
+    }
+
+    /// Whether chunk `k` is built, given the meshes of the level above
+    /// (each with whether it is a leaf), and if so its parent's mesh.
+    fn built_parent<'m>(&self, meshes: &'m AncestorMeshes, k: ChunkKey) -> Option<Option<&'m ChunkMesh>> {
+        let parent = match self.tree.parent(k) {
+            None => None,
+            Some(p) => match meshes.get(&p) {
+                Some((mesh, false)) => Some(mesh),
+                _ => return None,
+            },
+        };
+        self.worth_building(k).then_some(parent)
+    }
+
+    /// Builds the subtrees under `roots` (one level): their ancestors are
+    /// meshed again from the top, exactly as the whole build meshes them,
+    /// but not written, so each subtree starts from the parent mesh the
+    /// whole build would hand it.
+    fn under(&self, roots: &[ChunkKey]) -> Result<Vec<BuiltChunk>, BuildError> {
+        let tree = self.tree;
+        let Some(level) = roots.first().map(|k| k.level) else { return Ok(Vec::new()) };
+        let ancestor = |mut k: ChunkKey, l: u32| {
+            while k.level > l {
+                k = tree.parent(k).expect("a chunk below the top has a parent");
+            }
+            k
+        };
+        // (mesh, whether the chunk is a leaf) of every ancestor that exists.
+        let mut meshes = AncestorMeshes::new();
+        for l in 0..level {
+            let need: std::collections::BTreeSet<ChunkKey> = roots.iter().map(|&r| ancestor(r, l)).collect();
+            let made: Vec<Result<Option<(ChunkKey, ChunkMesh, bool)>, BuildError>> = need
+                .into_par_iter()
+                .map(|k| match self.built_parent(&meshes, k) {
+                    None => Ok(None),
+                    Some(parent) => self.mesh_chunk(k, parent).map(|(mesh, m)| Some((k, mesh, m.leaf))),
+                })
+                .collect();
+            for m in made {
+                if let Some((k, mesh, leaf)) = m? {
+                    meshes.insert(k, (mesh, leaf));
+                }
+            }
+        }
+        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> = roots
+            .par_iter()
+            .map(|&r| match self.built_parent(&meshes, r) {
+                None => Ok(Vec::new()),
+                Some(parent) => self.subtree(r, parent),
+            })
+            .collect();
+        let mut all = Vec::new();
+        for b in below {
+            all.extend(b?);
+        }
+        Ok(all)
     }
 
     /// Builds chunk `key` and everything below it.

@@ -9,5 +9,6 @@ mod hard_cases;
 mod pipeline;
 mod placement;
 mod properties;
+mod shard;
 mod texture;
 mod viewer;
