@@ -274,7 +274,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                             (Some(rep), false) => println!(
                                 "job {job}: {} chunks in {:.2} s{}",
                                 r.chunks,
-                                rep.seconds.total.max(rep.seconds.chunks),
+                                r.seconds,
                                 rep.peak_rss_bytes
                                     .map_or(String::new(), |b| format!(", peak memory {:.1} MB", b as f64 / 1e6))
                             ),
@@ -328,7 +328,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(path) => {
                     let m = shard::read_manifest(&path)?;
                     println!(
-                        "{}: {} jobs (job 0: levels 0..{}; {} shard jobs below level {})",
+                        "{}: {} jobs (job 0: the levels above {}; {} shard jobs from level {} down)",
                         path.display(),
                         m.jobs.len(),
                         m.shard_level,

@@ -361,11 +361,14 @@ pub struct JobRun {
     pub already_done: bool,
     /// The job's figures (absent when already done).
     pub report: Option<Report>,
+    /// Wall seconds, hashing and loading the input included.
+    pub seconds: f64,
 }
 
 /// Runs job `job` of the manifest at `manifest_path`, unless an earlier run
 /// finished it. Threads: the manifest's setting, or `threads` if given.
 pub fn run_job(manifest_path: &Path, job: usize, threads: Option<usize>) -> Result<JobRun, ShardError> {
+    let t0 = std::time::Instant::now();
     let m = read_manifest(manifest_path)?;
     let work = manifest_path.parent().unwrap_or(Path::new("."));
     let spec = m.jobs.get(job).ok_or_else(|| {
@@ -377,7 +380,7 @@ pub fn run_job(manifest_path: &Path, job: usize, threads: Option<usize>) -> Resu
     })?;
     let done = work.join(job_dir(job));
     if read_result(&done, &m).is_ok() {
-        return Ok(JobRun { chunks: 0, already_done: true, report: None });
+        return Ok(JobRun { chunks: 0, already_done: true, report: None, seconds: t0.elapsed().as_secs_f64() });
     }
     let found = manifest_hash(&m)?;
     if found != m.hash {
@@ -422,11 +425,13 @@ pub fn run_job(manifest_path: &Path, job: usize, threads: Option<usize>) -> Resu
         let _ = std::fs::remove_dir_all(&tmp);
         // Another run of the same job finished first: its bytes are these.
         if read_result(&done, &m).is_ok() {
-            return Ok(JobRun { chunks: built.records.len(), already_done: true, report: Some(built.report) });
+            let seconds = t0.elapsed().as_secs_f64();
+            return Ok(JobRun { chunks: built.records.len(), already_done: true, report: Some(built.report), seconds });
         }
         return Err(e);
     }
-    Ok(JobRun { chunks: built.records.len(), already_done: false, report: Some(built.report) })
+    let seconds = t0.elapsed().as_secs_f64();
+    Ok(JobRun { chunks: built.records.len(), already_done: false, report: Some(built.report), seconds })
 }
 
 /// What `merge` wrote.

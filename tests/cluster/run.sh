@@ -46,8 +46,12 @@ py="$venv/bin/python"
 
 work="$(mktemp -d "${TMPDIR:-/tmp}/terrachunk-cluster.XXXXXX")"
 pids=()
+workers=" "
 cleanup() {
   for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  sleep 1
+  # A worker whose scheduler went first may wait to reconnect instead of exiting.
+  for p in "${pids[@]}"; do kill -KILL "$p" 2>/dev/null || true; done
   wait 2>/dev/null || true
   rm -rf "$work"
 }
@@ -63,6 +67,7 @@ start_worker() {
   "$venv/bin/dask" worker "$addr" --host 127.0.0.1 --nthreads 1 --no-nanny --no-dashboard \
     --name "$1" >"$work/worker-$1.log" 2>&1 &
   pids+=($!)
+  workers+=" $! "
 }
 start_worker w1
 start_worker w2
@@ -101,10 +106,13 @@ victim=""
 for _ in $(seq 600); do
   # A job that has started writing chunks, and the worker process running it.
   for p in $(pgrep -f -- "--manifest $work/b.shards/manifest.json" || true); do
-    job="$(tr '\0' ' ' <"/proc/$p/cmdline" 2>/dev/null | sed -n 's/.*--job \([0-9]*\).*/\1/p')"
+    # (The job may end between the look-ups: each may find nothing.)
+    job="$( (tr '\0' ' ' <"/proc/$p/cmdline") 2>/dev/null | sed -n 's/.*--job \([0-9]*\).*/\1/p' || true)"
     if [ -n "$job" ] && compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null; then
-      victim="$(ps -o ppid= -p "$p" | tr -d ' ')"
-      break 2
+      victim="$(ps -o ppid= -p "$p" | tr -d ' ' || true)"
+      # Only ever one of the workers this script started.
+      case "$workers" in *" $victim "*) break 2 ;; esac
+      victim=""
     fi
   done
   sleep 0.1
