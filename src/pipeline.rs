@@ -386,7 +386,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
         let tree = plan.tree(cfg);
         std::fs::create_dir_all(dir).map_err(|source| BuildError::Io { path: dir.into(), source })?;
         let (mut report, records, texture) =
-            build_levels(&hf, &grid, &tree, colour.as_ref(), opts, dir, plan.lone_parts, Some(part))?;
+            build_levels(&hf, &grid, &tree, colour.as_ref(), opts, Target { dir, part: Some(part) }, plan.lone_parts)?;
         report.threads = threads;
         report.peak_rss_bytes = peak_rss();
         let mut extras = tileset_extras(&hf, opts, &tree);
@@ -439,7 +439,7 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;
         let discarded = attempts.elapsed();
         let lone_parts = lone_parts(&tree, &mut estimate);
-        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts, None) {
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, Target { dir: tmp, part: None }, lone_parts) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.refine_estimated = estimated;
@@ -489,16 +489,23 @@ impl Timers {
     }
 }
 
+/// Where a build writes its chunks, and which of them: the whole tree, or
+/// one job's part of it.
+struct Target<'p> {
+    dir: &'p Path,
+    part: Option<&'p TreePart>,
+}
+
 fn build_levels(
     hf: &Heightfield,
     grid: &Grid,
     tree: &ChunkTree,
     colour: Option<&ColourSource>,
     opts: &BuildOptions,
-    tmp: &Path,
+    target: Target,
     lone_parts: bool,
-    part: Option<&TreePart>,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
+    let Target { dir: tmp, part } = target;
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
@@ -805,7 +812,7 @@ impl Run<'_> {
         let mut meshes = AncestorMeshes::new();
         for l in 0..level {
             let need: std::collections::BTreeSet<ChunkKey> = roots.iter().map(|&r| ancestor(r, l)).collect();
-            let made: Vec<Result<Option<(ChunkKey, ChunkMesh, bool)>, BuildError>> = need
+            let made: Vec<Result<Option<_>, BuildError>> = need
                 .into_par_iter()
                 .map(|k| match self.built_parent(&meshes, k) {
                     None => Ok(None),

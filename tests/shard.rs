@@ -203,4 +203,14 @@ fn plan_jobs_and_merge_on_the_command_line() {
     let o = cli(&[&["plan", "--shards", "4", &s(&dem), "-o", &s(&out)][..], &common].concat());
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("already exists"));
+    // --force replaces a work folder a plan made, never another folder.
+    let mine = tmp.path().join("mine");
+    std::fs::create_dir(&mine).unwrap();
+    std::fs::write(mine.join("notes.txt"), b"keep").unwrap();
+    let o =
+        cli(&[&["plan", "--shards", "2", "--work", &s(&mine), &s(&dem), "-o", &s(&out), "--force"][..], &common]
+            .concat());
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a terrachunk work folder"));
+    assert!(mine.join("notes.txt").exists());
 }

@@ -166,13 +166,16 @@ struct JobResult {
     hash: String,
     job: usize,
     /// `[level, x, y]`, box min, box max, δ: one per chunk, in key order.
-    records: Vec<([u32; 3], [f64; 3], [f64; 3], f64)>,
+    records: Vec<RecordRow>,
     /// Job 0 only: the index's top-level extras.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     extras: Option<TilesetExtras>,
     /// The job's figures, for people (peak memory, seconds).
     report: serde_json::Value,
 }
+
+/// One chunk in a job's result: `[level, x, y]`, box min, box max, δ.
+type RecordRow = ([u32; 3], [f64; 3], [f64; 3], f64);
 
 /// Why a sharded step failed.
 #[derive(Debug, thiserror::Error)]
@@ -309,6 +312,13 @@ pub fn plan(opts: &BuildOptions, shards: usize, work: &Path) -> Result<PathBuf, 
     };
     manifest.hash = manifest_hash(&manifest)?;
     if work.exists() {
+        // Only a work folder a plan made is replaced: never a folder of the user's.
+        if !work.join(MANIFEST_FILE).is_file() {
+            return Err(ShardError::Usage(format!(
+                "{}: exists and holds no {MANIFEST_FILE}: not a terrachunk work folder, left as it is",
+                work.display()
+            )));
+        }
         std::fs::remove_dir_all(work).map_err(io(work))?;
     }
     std::fs::create_dir_all(work).map_err(io(work))?;
