@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// The meshoptimizer extension the quantized streams are compressed for
 /// (`output::compress` holds the codecs).
@@ -34,7 +34,7 @@ pub enum NormalEncoding {
 }
 
 /// Every pipeline setting, with its unit. Defaults match `pipeline.toml`.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
     /// δ of the deepest level: the largest vertical error, in metres, of the
@@ -146,7 +146,7 @@ pub struct Config {
 }
 
 /// Which mesher makes the chunks ([`Config::mesher`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Mesher {
     /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
@@ -201,7 +201,7 @@ pub const NORMAL_BITS_V1: u32 = 8;
 
 /// How a chunk's vertex data is stored. Measured figures are in
 /// docs/compression.md.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Compress {
     /// f32 positions, normals, morph deltas and texture coordinates: the
@@ -244,7 +244,7 @@ impl Compress {
 
 /// Which levels the mesher thins after greedy insertion
 /// ([`Config::thin`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Thin {
     /// No level.
@@ -272,7 +272,7 @@ impl Thin {
 /// mesher's own order gives 2.0): `Fast` 0.94, `Best` 0.68, while `Best`
 /// costs about a fifth of the whole build. On Fuji at 1 m: `Fast` 0.80,
 /// `Best` 0.63, `Strip` 0.66, `Strip` and `Best` taking the same time.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VertexCache {
     /// meshoptimizer's `optimizeVertexCacheFifo` for a 16-entry cache.

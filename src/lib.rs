@@ -5,7 +5,8 @@
 //! [`texture`] → [`output`] (glTF chunks, 3D Tiles index); [`lod`] is what
 //! a client runs per frame (chunk selection, morph weights); [`verify`]
 //! re-checks a written tileset from its files alone; [`mod@bench`] measures speed
-//! against error, beside other tools.
+//! against error, beside other tools; [`shard`] splits one build into
+//! independent jobs for a distributed engine.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
@@ -22,6 +23,7 @@ pub mod output;
 pub mod pipeline;
 mod progress;
 pub mod quadtree;
+pub mod shard;
 #[cfg(test)]
 mod test_rng;
 pub mod text;

@@ -8,6 +8,7 @@ use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
 use terrachunk::config::{Compress, Config, Mesher, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, Report, build};
+use terrachunk::shard;
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify_with_progress;
 
@@ -22,89 +23,27 @@ struct Cli {
 enum Command {
     /// Build a tileset from a DEM (several .hgt tiles or a folder make a mosaic).
     #[command(allow_negative_numbers = true)]
-    Build {
-        /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr.
-        #[arg(required = true)]
-        dem: Vec<PathBuf>,
-        /// Output directory.
-        #[arg(short, long)]
-        out: PathBuf,
-        /// Settings file (see pipeline.toml); command-line values win.
+    Build(BuildArgs),
+    /// Plan a sharded build: write a manifest of independent jobs (job 0 the
+    /// levels above the shards, then one per block of subtrees) for
+    /// `terrachunk build --manifest M --job K`, then `terrachunk merge M`.
+    /// Takes `build`'s options; the work folder is OUT.shards unless given.
+    #[command(allow_negative_numbers = true)]
+    Plan {
+        /// How many shard jobs (fewer where the tree has fewer chunks).
         #[arg(long)]
-        config: Option<PathBuf>,
-        /// Leaf accuracy: largest vertical error of the finest level, metres.
+        shards: usize,
+        /// Folder for the manifest and the jobs' files [default: OUT.shards].
         #[arg(long)]
-        max_error: Option<f64>,
-        /// Largest screen-space error the runtime may use, pixels.
-        #[arg(long)]
-        tau_max: Option<f64>,
-        /// Worker threads (0 = one per core).
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Multiply heights by this.
-        #[arg(long)]
-        vertical_scale: Option<f64>,
-        /// Ground spacing in metres: `S` or `SX,SZ`.
-        #[arg(long, value_parser = parse_spacing)]
-        spacing: Option<[f64; 2]>,
-        /// Colour image for the chunks (PNG, JPEG, 8-bit GeoTIFF), or `none`
-        /// for untextured chunks [default: a hillshade generated from the DEM].
-        #[arg(long, value_name = "IMAGE|none")]
-        texture: Option<String>,
-        /// How texture tiles are stored in the .glb.
-        #[arg(long, value_enum)]
-        texture_format: Option<TextureFormat>,
-        /// JPEG quality, 1..=100.
-        #[arg(long)]
-        jpeg_quality: Option<u8>,
-        /// Widest texture tile, texels.
-        #[arg(long)]
-        max_texture_px: Option<u32>,
-        /// Also write a tangent-space normal map from the full-resolution DEM.
-        #[arg(long)]
-        normal_map: bool,
-        /// Widest a deepest-level chunk may be, in cells, 2..=4096 [default:
-        /// chosen from the data]. Wider leaves make a smaller tileset with
-        /// fewer leaf triangles but cull in bigger pieces (docs/settings.md, "Chunk size").
-        #[arg(long)]
-        leaf_cells: Option<u32>,
-        /// Widest a top-level chunk may be, in cells, 2..=65536 [default:
-        /// one top-level chunk]. Narrower top chunks make a tree with fewer
-        /// levels: fewer leaf triangles and a smaller tileset, but a far view
-        /// that draws every top chunk (docs/settings.md, "Top-level chunks").
-        #[arg(long)]
-        root_cells: Option<u32>,
-        /// Most surface vertices one chunk may hold, 65535..=16777215
-        /// [default: 65535]; denser coarse chunks make the build add
-        /// refine levels. Chunks over 65 535 vertices get u32 indices.
-        #[arg(long)]
-        max_chunk_vertices: Option<u32>,
-        /// Which levels the mesher thins after greedy insertion: `leaves`
-        /// (the deepest), `all` (fewer triangles, slower), or `none`
-        /// [default: leaves].
-        #[arg(long, value_enum)]
-        thin: Option<Thin>,
-        /// Which mesher makes the chunks: `tin` (greedy insertion) or
-        /// `rtin` (right-triangle bintree, no slivers) [default: tin].
-        #[arg(long, value_enum)]
-        mesher: Option<Mesher>,
-        /// Build every chunk to the deepest level, even below one that already
-        /// meets the error (to measure what the error-bounded tree saves).
-        #[arg(long)]
-        complete_tree: bool,
-        /// How vertex data is stored: f32 (`none`, opens everywhere),
-        /// KHR_mesh_quantization (`quantize`), that plus
-        /// EXT_meshopt_compression (`meshopt`, for every meshopt reader) or
-        /// plus KHR_meshopt_compression with meshoptimizer's v1 vertex codec
-        /// (`meshopt-v1`, the smallest; CesiumJS ≥ 1.143) [default: none].
-        #[arg(long, value_enum)]
-        compress: Option<Compress>,
-        /// Replace an existing output directory.
-        #[arg(long)]
-        force: bool,
-        /// Also write the summary as JSON here.
-        #[arg(long)]
-        report: Option<PathBuf>,
+        work: Option<PathBuf>,
+        #[command(flatten)]
+        build: BuildArgs,
+    },
+    /// Write the tileset of a sharded build whose jobs have all finished:
+    /// their chunks and one index over them, byte-identical to `build`'s.
+    Merge {
+        /// The manifest `terrachunk plan` wrote.
+        manifest: PathBuf,
     },
     /// Re-check a tileset from its files: error bounds, borders, morph targets, structure.
     Verify {
@@ -130,6 +69,99 @@ enum Command {
     /// Speed against error: time builds over a ladder of max errors and
     /// measure each result's true error (OUT/bench.csv, bench.png, bench.svg).
     Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BuildArgs {
+    /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr.
+    #[arg(required_unless_present = "manifest")]
+    dem: Vec<PathBuf>,
+    /// Output directory.
+    #[arg(short, long, required_unless_present = "manifest")]
+    out: Option<PathBuf>,
+    /// Run one job of a sharded build's manifest (`terrachunk plan`) instead;
+    /// only `--threads` applies, every other setting is the manifest's.
+    #[arg(long, requires = "job", conflicts_with_all = ["dem", "out", "config"])]
+    manifest: Option<PathBuf>,
+    /// The job to run: 0 for the levels above the shards, 1… for the shards.
+    #[arg(long, requires = "manifest")]
+    job: Option<usize>,
+    /// Settings file (see pipeline.toml); command-line values win.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Leaf accuracy: largest vertical error of the finest level, metres.
+    #[arg(long)]
+    max_error: Option<f64>,
+    /// Largest screen-space error the runtime may use, pixels.
+    #[arg(long)]
+    tau_max: Option<f64>,
+    /// Worker threads (0 = one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Multiply heights by this.
+    #[arg(long)]
+    vertical_scale: Option<f64>,
+    /// Ground spacing in metres: `S` or `SX,SZ`.
+    #[arg(long, value_parser = parse_spacing)]
+    spacing: Option<[f64; 2]>,
+    /// Colour image for the chunks (PNG, JPEG, 8-bit GeoTIFF), or `none`
+    /// for untextured chunks [default: a hillshade generated from the DEM].
+    #[arg(long, value_name = "IMAGE|none")]
+    texture: Option<String>,
+    /// How texture tiles are stored in the .glb.
+    #[arg(long, value_enum)]
+    texture_format: Option<TextureFormat>,
+    /// JPEG quality, 1..=100.
+    #[arg(long)]
+    jpeg_quality: Option<u8>,
+    /// Widest texture tile, texels.
+    #[arg(long)]
+    max_texture_px: Option<u32>,
+    /// Also write a tangent-space normal map from the full-resolution DEM.
+    #[arg(long)]
+    normal_map: bool,
+    /// Widest a deepest-level chunk may be, in cells, 2..=4096 [default:
+    /// chosen from the data]. Wider leaves make a smaller tileset with
+    /// fewer leaf triangles but cull in bigger pieces (docs/settings.md, "Chunk size").
+    #[arg(long)]
+    leaf_cells: Option<u32>,
+    /// Widest a top-level chunk may be, in cells, 2..=65536 [default:
+    /// one top-level chunk]. Narrower top chunks make a tree with fewer
+    /// levels: fewer leaf triangles and a smaller tileset, but a far view
+    /// that draws every top chunk (docs/settings.md, "Top-level chunks").
+    #[arg(long)]
+    root_cells: Option<u32>,
+    /// Most surface vertices one chunk may hold, 65535..=16777215
+    /// [default: 65535]; denser coarse chunks make the build add
+    /// refine levels. Chunks over 65 535 vertices get u32 indices.
+    #[arg(long)]
+    max_chunk_vertices: Option<u32>,
+    /// Which levels the mesher thins after greedy insertion: `leaves`
+    /// (the deepest), `all` (fewer triangles, slower), or `none`
+    /// [default: leaves].
+    #[arg(long, value_enum)]
+    thin: Option<Thin>,
+    /// Which mesher makes the chunks: `tin` (greedy insertion) or
+    /// `rtin` (right-triangle bintree, no slivers) [default: tin].
+    #[arg(long, value_enum)]
+    mesher: Option<Mesher>,
+    /// Build every chunk to the deepest level, even below one that already
+    /// meets the error (to measure what the error-bounded tree saves).
+    #[arg(long)]
+    complete_tree: bool,
+    /// How vertex data is stored: f32 (`none`, opens everywhere),
+    /// KHR_mesh_quantization (`quantize`), that plus
+    /// EXT_meshopt_compression (`meshopt`, for every meshopt reader) or
+    /// plus KHR_meshopt_compression with meshoptimizer's v1 vertex codec
+    /// (`meshopt-v1`, the smallest; CesiumJS ≥ 1.143) [default: none].
+    #[arg(long, value_enum)]
+    compress: Option<Compress>,
+    /// Replace an existing output directory.
+    #[arg(long)]
+    force: bool,
+    /// Also write the summary as JSON here.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -214,98 +246,43 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
-        Command::Build {
-            dem,
-            out,
-            config,
-            max_error,
-            tau_max,
-            threads,
-            vertical_scale,
-            spacing,
-            texture,
-            texture_format,
-            jpeg_quality,
-            max_texture_px,
-            normal_map,
-            leaf_cells,
-            root_cells,
-            max_chunk_vertices,
-            thin,
-            mesher,
-            complete_tree,
-            compress,
-            force,
-            report,
-        } => {
-            let mut cfg = match &config {
-                Some(p) => match Config::from_file(p) {
-                    Ok(c) => c,
+        Command::Build(args) => {
+            if let (Some(manifest), Some(job)) = (&args.manifest, args.job) {
+                return Ok(match shard::run_job(manifest, job, args.threads) {
+                    Ok(r) => {
+                        match (&r.report, r.already_done) {
+                            (_, true) => println!("job {job}: already done"),
+                            (Some(rep), false) => println!(
+                                "job {job}: {} chunks in {:.2} s{}",
+                                r.chunks,
+                                r.seconds,
+                                rep.peak_rss_bytes
+                                    .map_or(String::new(), |b| format!(", peak memory {:.1} MB", b as f64 / 1e6))
+                            ),
+                            (None, false) => println!("job {job}: {} chunks", r.chunks),
+                        }
+                        ExitCode::SUCCESS
+                    }
                     Err(e) => {
                         eprintln!("error: {e}");
-                        return Ok(ExitCode::from(2));
+                        ExitCode::from(e.exit_code() as u8)
                     }
-                },
-                None => Config::default(),
+                });
+            }
+            let (opts, report) = match build_options(args) {
+                Ok(o) => o,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return Ok(ExitCode::from(2));
+                }
             };
-            if let Some(v) = max_error {
-                cfg.max_error_m = v;
-            }
-            if let Some(v) = tau_max {
-                cfg.tau_max_px = v;
-            }
-            if let Some(v) = threads {
-                cfg.threads = v;
-            }
-            if let Some(v) = vertical_scale {
-                cfg.vertical_scale = v;
-            }
-            if spacing.is_some() {
-                cfg.spacing_m = spacing;
-            }
-            if let Some(f) = texture_format {
-                cfg.texture_format = f;
-            }
-            if let Some(v) = jpeg_quality {
-                cfg.jpeg_quality = v;
-            }
-            if let Some(v) = max_texture_px {
-                cfg.max_texture_px = v;
-            }
-            cfg.normal_map |= normal_map;
-            if leaf_cells.is_some() {
-                cfg.leaf_cells = leaf_cells;
-            }
-            if root_cells.is_some() {
-                cfg.root_cells = root_cells;
-            }
-            if let Some(v) = max_chunk_vertices {
-                cfg.max_chunk_vertices = v;
-            }
-            if let Some(t) = thin {
-                cfg.thin = t;
-            }
-            if let Some(m) = mesher {
-                cfg.mesher = m;
-            }
-            cfg.complete_tree |= complete_tree;
-            if let Some(c) = compress {
-                cfg.compress = c;
-            }
             if let Some(p) = &report
-                && let Err(e) = Report::check_path(p, &dem)
+                && let Err(e) = Report::check_path(p, &opts.inputs)
             {
                 eprintln!("error: {e}");
                 return Ok(ExitCode::from(2));
             }
-            let opts = BuildOptions {
-                inputs: dem,
-                out: out.clone(),
-                force,
-                config: cfg,
-                texture: texture.as_deref().map_or(TextureSource::Generated, TextureSource::from_arg),
-                progress: std::io::stderr().is_terminal(),
-            };
+            let out = opts.out.clone();
             match build(&opts) {
                 Ok(r) => {
                     print!("{}", r.summary(&out, opts.config.max_chunk_vertices));
@@ -327,6 +304,48 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 }
             }
         }
+        Command::Plan { shards, work, build } => {
+            if build.manifest.is_some() {
+                eprintln!("error: `plan` takes DEM files and build options, not --manifest");
+                return Ok(ExitCode::from(2));
+            }
+            let (opts, _) = match build_options(build) {
+                Ok(o) => o,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
+            let work = work.unwrap_or_else(|| shard::default_work(&opts.out));
+            match shard::plan(&opts, shards, &work) {
+                Ok(path) => {
+                    let m = shard::read_manifest(&path)?;
+                    println!(
+                        "{}: {} jobs (job 0: the levels above {}; {} shard jobs from level {} down)",
+                        path.display(),
+                        m.jobs.len(),
+                        m.shard_level,
+                        m.jobs.len() - 1,
+                        m.shard_level
+                    );
+                    Ok(ExitCode::SUCCESS)
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    Ok(ExitCode::from(e.exit_code() as u8))
+                }
+            }
+        }
+        Command::Merge { manifest } => match shard::merge(&manifest) {
+            Ok(m) => {
+                println!("{}: {} chunks, tileset.json {} bytes", m.out.display(), m.chunks, m.index_bytes);
+                Ok(ExitCode::SUCCESS)
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                Ok(ExitCode::from(e.exit_code() as u8))
+            }
+        },
         Command::Verify { dir, dem } => {
             let over = (!dem.is_empty()).then_some(dem.as_slice());
             let r = match verify_with_progress(&dir, over, std::io::stderr().is_terminal()) {
@@ -366,6 +385,69 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
         }
     }
+}
+
+/// The build options the command line gives, with the file it wants the
+/// report in: settings file first, command-line values over it.
+fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String> {
+    let BuildArgs { dem, out, manifest: _, job: _, config, max_error, tau_max, threads, vertical_scale, spacing, texture, texture_format, jpeg_quality, max_texture_px, normal_map, leaf_cells, root_cells, max_chunk_vertices, thin, mesher, complete_tree, compress, force, report } = a;
+    let mut cfg = match &config {
+        Some(p) => Config::from_file(p).map_err(|e| e.to_string())?,
+        None => Config::default(),
+    };
+    if let Some(v) = max_error {
+        cfg.max_error_m = v;
+    }
+    if let Some(v) = tau_max {
+        cfg.tau_max_px = v;
+    }
+    if let Some(v) = threads {
+        cfg.threads = v;
+    }
+    if let Some(v) = vertical_scale {
+        cfg.vertical_scale = v;
+    }
+    if spacing.is_some() {
+        cfg.spacing_m = spacing;
+    }
+    if let Some(f) = texture_format {
+        cfg.texture_format = f;
+    }
+    if let Some(v) = jpeg_quality {
+        cfg.jpeg_quality = v;
+    }
+    if let Some(v) = max_texture_px {
+        cfg.max_texture_px = v;
+    }
+    cfg.normal_map |= normal_map;
+    if leaf_cells.is_some() {
+        cfg.leaf_cells = leaf_cells;
+    }
+    if root_cells.is_some() {
+        cfg.root_cells = root_cells;
+    }
+    if let Some(v) = max_chunk_vertices {
+        cfg.max_chunk_vertices = v;
+    }
+    if let Some(t) = thin {
+        cfg.thin = t;
+    }
+    if let Some(m) = mesher {
+        cfg.mesher = m;
+    }
+    cfg.complete_tree |= complete_tree;
+    if let Some(c) = compress {
+        cfg.compress = c;
+    }
+    let opts = BuildOptions {
+        inputs: dem,
+        out: out.ok_or("give -o OUT")?,
+        force,
+        config: cfg,
+        texture: texture.as_deref().map_or(TextureSource::Generated, TextureSource::from_arg),
+        progress: std::io::stderr().is_terminal(),
+    };
+    Ok((opts, report))
 }
 
 /// Runs the sibling `terrachunk-view` binary: the viewer is its own crate so

@@ -13,6 +13,7 @@ mod pipeline;
 mod placement;
 mod properties;
 mod rtin;
+mod shard;
 mod texture;
 mod verify_trust;
 mod viewer;

@@ -20,11 +20,15 @@ use std::time::Instant;
 use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
-use crate::heightfield::Heightfield;
+use crate::heightfield::{Heightfield, void_fill};
+use crate::mesh::decimate::Grid;
 use crate::mesh::MeshError;
 use crate::output::compress::QuantizeError;
 use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json};
 use crate::quadtree::ChunkTree;
+use crate::quadtree::estimate::{Planned, plan_tree};
+use crate::shard::{FixedPlan, PartBuilt, TreePart};
+use crate::texture::source::{generate, generated_to_px, load_image};
 use crate::texture::{TextureError, TextureSource};
 
 pub use chunk::assemble;
@@ -232,7 +236,7 @@ fn check_extent(hf: &Heightfield, opts: &BuildOptions) -> Result<(), BuildError>
     Err(BuildError::Extent { files: files.join(", "), extent_m: extent, spacing_m: hf.spacing_m })
 }
 
-fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
+pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
     TilesetExtras {
         generator: format!("terrachunk {}", env!("CARGO_PKG_VERSION")),
         grid: GridSize { width: hf.width as u32, height: hf.height as u32 },
@@ -259,4 +263,66 @@ fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> Ti
                 minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
             .into(),
     }
+}
+
+/// The tree [`build`] would plan for `opts`, fixed so that the jobs of a
+/// sharded build ([`crate::shard`]) all build the same one: the grid's size,
+/// the leaf width and refine levels the estimate chooses, and whether lone
+/// chunks fill by parts. `build` adds a refine level when a chunk turns out
+/// too dense; a job cannot, and fails instead ([`crate::shard`] says so).
+pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
+    opts.config.validate()?;
+    let cfg = &opts.config;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    check_extent(&hf, opts)?;
+    let filled = void_fill(&hf);
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let to_px = match &opts.texture {
+        TextureSource::None => None,
+        TextureSource::Image(path) => Some(load_image(path, &hf)?.to_px),
+        TextureSource::Generated => Some(generated_to_px(&hf, cfg)),
+    };
+    let Planned { mut estimate, leaf_cells, refine } = plan_tree(&hf, &grid, cfg, to_px);
+    let tree = estimate.tree(leaf_cells, refine);
+    let lone_parts = schedule::lone_parts(&tree, &mut estimate);
+    Ok(FixedPlan { grid: [hf.width, hf.height], leaf_cells, refine_levels: refine, lone_parts })
+}
+
+/// Builds one job's part of the fixed tree `plan` into `dir` (which must
+/// not exist yet): its chunks' files, and what the index needs from them.
+/// The chunks are byte for byte those [`build`] writes for the same
+/// options and tree, whatever the part and the thread count.
+pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &Path) -> Result<PartBuilt, BuildError> {
+    opts.config.validate()?;
+    let cfg = &opts.config;
+    let hf =
+        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    check_extent(&hf, opts)?;
+    let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| BuildError::ThreadPool { threads, why: e.to_string() })?;
+    pool.install(|| {
+        let filled = void_fill(&hf);
+        let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+        let colour = match &opts.texture {
+            TextureSource::None => None,
+            TextureSource::Image(path) => Some(load_image(path, &hf)?),
+            TextureSource::Generated => Some(generate(&hf, filled.as_deref(), cfg)?),
+        };
+        let tree = plan.tree(cfg);
+        std::fs::create_dir_all(dir).map_err(|source| BuildError::Io { path: dir.into(), source })?;
+        let target = schedule::Target { dir, part: Some(part) };
+        let (mut report, records, texture) =
+            schedule::build_levels(&hf, &grid, &tree, colour.as_ref(), opts, target, plan.lone_parts)?;
+        report.threads = threads;
+        report.peak_rss_bytes = peak_rss();
+        let mut extras = tileset_extras(&hf, opts, &tree);
+        extras.source =
+            SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
+        extras.texture = texture;
+        Ok(PartBuilt { report, records, extras })
+    })
 }

@@ -23,6 +23,7 @@ use crate::output::compress::Quantization;
 use crate::output::gltf::GlbContext;
 use crate::output::tileset::TileRecord;
 use crate::progress;
+use crate::shard::TreePart;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
 use crate::texture::source::{generate, generated_to_px, load_image};
@@ -82,7 +83,7 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
         }
         let discarded = attempts.elapsed();
         let lone_parts = lone_parts(&tree, &mut estimate);
-        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, tmp, lone_parts) {
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, Target { dir: tmp, part: None }, lone_parts) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.refine_estimated = estimated;
@@ -132,15 +133,23 @@ impl Timers {
     }
 }
 
-fn build_levels(
+/// Where a build writes its chunks, and which of them: the whole tree, or
+/// one job's part of it.
+pub(super) struct Target<'p> {
+    pub(super) dir: &'p Path,
+    pub(super) part: Option<&'p TreePart>,
+}
+
+pub(super) fn build_levels(
     hf: &Heightfield,
     grid: &Grid,
     tree: &ChunkTree,
     colour: Option<&ColourSource>,
     opts: &BuildOptions,
-    tmp: &Path,
+    target: Target,
     lone_parts: bool,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
+    let Target { dir: tmp, part } = target;
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
@@ -166,6 +175,7 @@ fn build_levels(
         texturer: texturer.as_ref(),
         lone_parts,
         rtin: rtin.as_ref(),
+        part,
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
@@ -279,6 +289,9 @@ pub(super) struct Meshed {
     pub(super) leaf: bool,
 }
 
+/// The meshes of a subtree job's ancestors, each with whether it is a leaf.
+type AncestorMeshes = std::collections::BTreeMap<ChunkKey, (ChunkMesh, bool)>;
+
 /// One build's shared state.
 pub(super) struct Run<'a> {
     pub(super) hf: &'a Heightfield,
@@ -292,6 +305,8 @@ pub(super) struct Run<'a> {
     pub(super) lone_parts: bool,
     /// The bintree's error field, where it meshes the chunks.
     pub(super) rtin: Option<&'a Rtin>,
+    /// One job's part of the tree (a sharded build), or the whole tree.
+    pub(super) part: Option<&'a TreePart>,
     pub(super) timers: Timers,
     pub(super) bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -320,6 +335,9 @@ impl Run<'_> {
     /// parallel: a chunk's mesh lives only while its children are built, so
     /// memory holds a few root-to-leaf paths rather than whole levels.
     fn all_chunks(&self) -> Result<Vec<BuiltChunk>, BuildError> {
+        if let Some(TreePart::Under(roots)) = self.part {
+            return self.under(roots);
+        }
         let tree = self.tree;
         let level_first = (0..=tree.depth())
             .take_while(|&l| {
@@ -330,8 +348,8 @@ impl Run<'_> {
             .count();
         let mut done = Vec::new();
         // (parent mesh, its children to build)
-        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> =
-            vec![(None, tree.roots().into_iter().filter(|&k| self.worth_building(k)).collect())];
+        let roots = tree.roots().into_iter().filter(|&k| self.in_part(k) && self.worth_building(k)).collect();
+        let mut frontier: Vec<(Option<ChunkMesh>, Vec<ChunkKey>)> = vec![(None, roots)];
         // A level's chunks are textured and written while the next level is
         // meshed: its meshes are all the next level needs (the root alone
         // would otherwise keep the other threads waiting while it writes).
@@ -393,12 +411,82 @@ impl Run<'_> {
         self.failed.store(true, Ordering::Relaxed);
     }
 
-    /// The children of a chunk that are worth building.
+    /// The children of a chunk that are worth building (and that this
+    /// job's part of the tree holds).
     fn kids(&self, key: ChunkKey, leaf: bool) -> Vec<ChunkKey> {
         match leaf {
             true => Vec::new(),
-            false => self.tree.children(key).into_iter().filter(|&c| self.worth_building(c)).collect(),
+            false => {
+                self.tree.children(key).into_iter().filter(|&c| self.in_part(c) && self.worth_building(c)).collect()
+            }
         }
+    }
+
+    /// Whether chunk `k` is this job's to write: below the shard level for
+    /// the job above the shards; every chunk otherwise (a subtree job starts
+    /// from its own roots, [`Run::under`]).
+    fn in_part(&self, k: ChunkKey) -> bool {
+        match self.part {
+            Some(TreePart::Above(level)) => k.level < *level,
+            _ => true,
+        }
+    }
+
+    /// Whether chunk `k` is built, given the meshes of the level above
+    /// (each with whether it is a leaf), and if so its parent's mesh.
+    fn built_parent<'m>(&self, meshes: &'m AncestorMeshes, k: ChunkKey) -> Option<Option<&'m ChunkMesh>> {
+        let parent = match self.tree.parent(k) {
+            None => None,
+            Some(p) => match meshes.get(&p) {
+                Some((mesh, false)) => Some(mesh),
+                _ => return None,
+            },
+        };
+        self.worth_building(k).then_some(parent)
+    }
+
+    /// Builds the subtrees under `roots` (one level): their ancestors are
+    /// meshed again from the top, exactly as the whole build meshes them,
+    /// but not written, so each subtree starts from the parent mesh the
+    /// whole build would hand it.
+    fn under(&self, roots: &[ChunkKey]) -> Result<Vec<BuiltChunk>, BuildError> {
+        let tree = self.tree;
+        let Some(level) = roots.first().map(|k| k.level) else { return Ok(Vec::new()) };
+        let ancestor = |mut k: ChunkKey, l: u32| {
+            while k.level > l {
+                k = tree.parent(k).expect("a chunk below the top has a parent");
+            }
+            k
+        };
+        // (mesh, whether the chunk is a leaf) of every ancestor that exists.
+        let mut meshes = AncestorMeshes::new();
+        for l in 0..level {
+            let need: std::collections::BTreeSet<ChunkKey> = roots.iter().map(|&r| ancestor(r, l)).collect();
+            let made: Vec<Result<Option<_>, BuildError>> = need
+                .into_par_iter()
+                .map(|k| match self.built_parent(&meshes, k) {
+                    None => Ok(None),
+                    Some(parent) => self.mesh_chunk(k, parent).map(|(mesh, m)| Some((k, mesh, m.leaf))),
+                })
+                .collect();
+            for m in made {
+                if let Some((k, mesh, leaf)) = m? {
+                    meshes.insert(k, (mesh, leaf));
+                }
+            }
+        }
+        let below: Vec<Result<Vec<BuiltChunk>, BuildError>> = roots
+            .par_iter()
+            .map(|&r| match self.built_parent(&meshes, r) {
+                None => Ok(Vec::new()),
+                Some(parent) => self.subtree(r, parent),
+            })
+            .collect();
+        let mut all = Vec::new();
+        for b in below {
+            all.extend(b?);
+        }
+        Ok(all)
     }
 
     /// Builds chunk `key` and everything below it.
@@ -504,7 +592,7 @@ pub(super) fn few_chunks(tree: &ChunkTree, level: u32) -> bool {
 /// at [`PARTS_VERTICES`] or more take them: Fuji 513² at 30 m (3 162
 /// vertices), not a small or flat grid's few triangles. Decided by the
 /// tree and the data, never the thread count.
-fn lone_parts(tree: &ChunkTree, estimate: &mut Estimate) -> bool {
+pub(super) fn lone_parts(tree: &ChunkTree, estimate: &mut Estimate) -> bool {
     let lone = (0..=tree.depth()).any(|l| few_chunks(tree, l) && !tree.splits(l));
     lone && estimate.vertices_per_chunk(tree, 0) >= PARTS_VERTICES
 }
