@@ -390,7 +390,32 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 /// The build options the command line gives, with the file it wants the
 /// report in: settings file first, command-line values over it.
 fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String> {
-    let BuildArgs { dem, out, manifest: _, job: _, config, max_error, tau_max, threads, vertical_scale, spacing, texture, texture_format, jpeg_quality, max_texture_px, normal_map, leaf_cells, root_cells, max_chunk_vertices, thin, mesher, complete_tree, compress, force, report } = a;
+    let BuildArgs {
+        dem,
+        out,
+        manifest: _,
+        job: _,
+        config,
+        max_error,
+        tau_max,
+        threads,
+        vertical_scale,
+        spacing,
+        texture,
+        texture_format,
+        jpeg_quality,
+        max_texture_px,
+        normal_map,
+        leaf_cells,
+        root_cells,
+        max_chunk_vertices,
+        thin,
+        mesher,
+        complete_tree,
+        compress,
+        force,
+        report,
+    } = a;
     let mut cfg = match &config {
         Some(p) => Config::from_file(p).map_err(|e| e.to_string())?,
         None => Config::default(),

@@ -446,7 +446,8 @@ impl Field<'_> {
                     e = e.max(up_f32(scan_triangle(self.grid, &corners).error + rounding));
                     for k in t.children(m) {
                         if let Some(km) = k.midpoint() {
-                            let below = self.errors[km.1 as usize * self.grid.width + km.0 as usize].load(Ordering::Relaxed);
+                            let below =
+                                self.errors[km.1 as usize * self.grid.width + km.0 as usize].load(Ordering::Relaxed);
                             e = e.max(f32::from_bits(below));
                         }
                     }

@@ -21,8 +21,8 @@ use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
-use crate::mesh::decimate::Grid;
 use crate::mesh::MeshError;
+use crate::mesh::decimate::Grid;
 use crate::output::compress::QuantizeError;
 use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json};
 use crate::quadtree::ChunkTree;
@@ -194,8 +194,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     let (mut report, tree, records, texture, [t_plan, t_source, t_chunks]) = built;
     let t_idx = Instant::now();
     let mut extras = tileset_extras(&hf, opts, &tree);
-    extras.source =
-        SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
+    extras.source = SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
     extras.texture = texture;
     let doc = tileset_json(&tree, &records, &extras);
     // Compact: a client reads the whole index before it draws anything,

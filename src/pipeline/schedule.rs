@@ -15,17 +15,17 @@ use super::report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Repor
 use super::{BuildError, BuildOptions};
 use crate::chunk::Chunk;
 use crate::config::{Mesher, dense_leaf_cells};
-use crate::mesh::rtin::{self, Rtin};
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{CUT_SHARE, Grid, U16_INDEXED};
+use crate::mesh::rtin::{self, Rtin};
 use crate::mesh::{ChunkMesh, MeshError};
 use crate::output::compress::Quantization;
 use crate::output::gltf::GlbContext;
 use crate::output::tileset::TileRecord;
 use crate::progress;
-use crate::shard::TreePart;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
+use crate::shard::TreePart;
 use crate::texture::source::{generate, generated_to_px, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureExtras, TextureSource, Texturer};
 
@@ -74,7 +74,9 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
     loop {
         let tree = match opts.config.mesher {
             Mesher::Tin => estimate.tree(leaf_cells, refine),
-            Mesher::Rtin => rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine),
+            Mesher::Rtin => {
+                rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine)
+            }
         };
         // An attempt that stopped leaves tiles of a tree planned otherwise.
         let tiles = tmp.join("tiles");

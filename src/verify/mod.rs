@@ -316,7 +316,14 @@ impl Walk<'_> {
         if !checks::finite(c) {
             // Every measure below would read NaN as "no error".
             problems.extend(checks::not_finite(c));
-            return Findings { delta_m: c.delta_m, error_m: f64::INFINITY, morph_gap_m: 0.0, texel: None, shape: ShapeSummary::default(), problems };
+            return Findings {
+                delta_m: c.delta_m,
+                error_m: f64::INFINITY,
+                morph_gap_m: 0.0,
+                texel: None,
+                shape: ShapeSummary::default(),
+                problems,
+            };
         }
         checks::normals(c, &mut problems);
         let has_children = !tile.children.is_empty();
