@@ -382,7 +382,9 @@ fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built
     loop {
         let tree = match opts.config.mesher {
             Mesher::Tin => estimate.tree(leaf_cells, refine),
-            Mesher::Rtin => rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine),
+            Mesher::Rtin => {
+                rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine)
+            }
         };
         let _ = std::fs::remove_dir_all(tmp);
         std::fs::create_dir_all(tmp).map_err(|source| BuildError::Io { path: tmp.into(), source })?;

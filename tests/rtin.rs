@@ -26,10 +26,8 @@ fn largest_aspect(out: &Path) -> f64 {
         for t in &c.surface.triangles {
             let [a, b, p] = t.map(|v| c.surface.positions[v as usize]);
             let cross = ((b[0] - a[0]) * (p[2] - a[2]) - (b[2] - a[2]) * (p[0] - a[0])).abs();
-            let longest = [(a, b), (b, p), (p, a)]
-                .iter()
-                .map(|(u, v)| (v[0] - u[0]).hypot(v[2] - u[2]))
-                .fold(0.0, f64::max);
+            let longest =
+                [(a, b), (b, p), (p, a)].iter().map(|(u, v)| (v[0] - u[0]).hypot(v[2] - u[2])).fold(0.0, f64::max);
             worst = worst.max(longest * longest / cross);
         }
     }

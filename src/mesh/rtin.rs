@@ -446,7 +446,8 @@ impl Field<'_> {
                     e = e.max(up_f32(scan_triangle(self.grid, &corners).error + rounding));
                     for k in t.children(m) {
                         if let Some(km) = k.midpoint() {
-                            let below = self.errors[km.1 as usize * self.grid.width + km.0 as usize].load(Ordering::Relaxed);
+                            let below =
+                                self.errors[km.1 as usize * self.grid.width + km.0 as usize].load(Ordering::Relaxed);
                             e = e.max(f32::from_bits(below));
                         }
                     }
@@ -523,9 +524,10 @@ impl Mesher<'_> {
 
     fn emit(&mut self, t: Tri, ph: [f64; 3]) {
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
-        // Counter-clockwise in (x east, z south), as the TIN's are.
+        // Counter-clockwise seen from above (y up), as the TIN's are stored:
+        // clockwise in x-east, z-south grid space.
         let [a, b, c] = [t.a, t.b, t.r].map(|p| (i64::from(p.0), i64::from(p.1)));
-        if (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0) < 0 {
+        if (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0) > 0 {
             v.swap(1, 2);
         }
         self.triangles.push(v);
@@ -580,16 +582,16 @@ mod tests {
         })
     }
 
-    /// The structure every chunk keeps: right-isosceles counter-clockwise
-    /// triangles that tile its footprint exactly, every sample within δ.
+    /// The structure every chunk keeps: right-isosceles triangles,
+    /// counter-clockwise seen from above, that tile its footprint exactly, every sample within δ.
     fn check(mesh: &ChunkMesh, w: usize, heights: &[f32]) {
         let ((x0, x1), (z0, z1)) = mesh.footprint;
         let mut area = 0.0;
         for t in &mesh.triangles {
             let [a, b, c] = t.map(|v| mesh.vertices[v as usize]);
             let cross = (b.x - a.x) * (c.z - a.z) - (b.z - a.z) * (c.x - a.x);
-            assert!(cross > 0.0, "{:?}: triangle {t:?} not counter-clockwise", mesh.key);
-            area += cross / 2.0;
+            assert!(cross < 0.0, "{:?}: triangle {t:?} not counter-clockwise seen from above", mesh.key);
+            area -= cross / 2.0;
             let mut l2 = [(a, b), (b, c), (c, a)].map(|(p, q)| (q.x - p.x).powi(2) + (q.z - p.z).powi(2));
             l2.sort_by(f64::total_cmp);
             assert!(l2[0] == l2[1] && l2[0] + l2[1] == l2[2], "{:?}: {t:?} not right-isosceles", mesh.key);
