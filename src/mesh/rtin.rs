@@ -109,7 +109,7 @@ impl Tri {
     #[inline]
     fn midpoint(&self) -> Option<P> {
         let (sx, sz) = (self.a.0 + self.b.0, self.a.1 + self.b.1);
-        (sx % 2 == 0 && sz % 2 == 0).then_some((sx / 2, sz / 2))
+        (sx.is_multiple_of(2) && sz.is_multiple_of(2)).then_some((sx / 2, sz / 2))
     }
 
     /// The two halves it splits into at `m`.
@@ -289,7 +289,7 @@ fn place(t: &Tri, xmax: u32, zmax: u32) -> Place {
 /// corners in `[a, b, r]` order.
 fn square_triangles(x0: u32, z0: u32, c: u32) -> [(Tri, [P; 3]); 2] {
     let (p00, p10, p01, p11) = ((x0, z0), (x0 + c, z0), (x0, z0 + c), (x0 + c, z0 + c));
-    let tris = if ((x0 / c) + (z0 / c)) % 2 == 0 {
+    let tris = if ((x0 / c) + (z0 / c)).is_multiple_of(2) {
         [Tri { a: p00, b: p11, r: p01 }, Tri { a: p11, b: p00, r: p10 }]
     } else {
         [Tri { a: p10, b: p01, r: p00 }, Tri { a: p01, b: p10, r: p11 }]
@@ -402,7 +402,7 @@ impl Field<'_> {
         let mut rows: Vec<(u32, u32)> = Vec::new();
         let mut z = if square { h } else { 0 };
         while z <= self.zmax {
-            let first = if square || z % c == 0 { h } else { 0 };
+            let first = if square || z.is_multiple_of(c) { h } else { 0 };
             rows.push((z, first));
             z += if square { c } else { h };
         }
@@ -424,7 +424,7 @@ impl Field<'_> {
             // The square of side c centred at m, cut by its diagonal.
             let (x0, z0) = (m.0 - h, m.1 - h);
             square_triangles(x0, z0, c).map(|(t, _)| Some(t))
-        } else if m.1 % c == 0 {
+        } else if m.1.is_multiple_of(c) {
             // A horizontal side: apexes at the centres above and below.
             let (p, q) = ((m.0 - h, m.1), (m.0 + h, m.1));
             [m.1.checked_sub(h).map(|zu| Tri { a: q, b: p, r: (m.0, zu) }), Some(Tri { a: p, b: q, r: (m.0, m.1 + h) })]
@@ -524,9 +524,10 @@ impl Mesher<'_> {
 
     fn emit(&mut self, t: Tri, ph: [f64; 3]) {
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
-        // Counter-clockwise in (x east, z south), as the TIN's are.
+        // Counter-clockwise seen from above (y up), as the TIN's are stored:
+        // clockwise in x-east, z-south grid space.
         let [a, b, c] = [t.a, t.b, t.r].map(|p| (i64::from(p.0), i64::from(p.1)));
-        if (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0) < 0 {
+        if (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0) > 0 {
             v.swap(1, 2);
         }
         self.triangles.push(v);
@@ -581,16 +582,16 @@ mod tests {
         })
     }
 
-    /// The structure every chunk keeps: right-isosceles counter-clockwise
-    /// triangles that tile its footprint exactly, every sample within δ.
+    /// The structure every chunk keeps: right-isosceles triangles,
+    /// counter-clockwise seen from above, that tile its footprint exactly, every sample within δ.
     fn check(mesh: &ChunkMesh, w: usize, heights: &[f32]) {
         let ((x0, x1), (z0, z1)) = mesh.footprint;
         let mut area = 0.0;
         for t in &mesh.triangles {
             let [a, b, c] = t.map(|v| mesh.vertices[v as usize]);
             let cross = (b.x - a.x) * (c.z - a.z) - (b.z - a.z) * (c.x - a.x);
-            assert!(cross > 0.0, "{:?}: triangle {t:?} not counter-clockwise", mesh.key);
-            area += cross / 2.0;
+            assert!(cross < 0.0, "{:?}: triangle {t:?} not counter-clockwise seen from above", mesh.key);
+            area -= cross / 2.0;
             let mut l2 = [(a, b), (b, c), (c, a)].map(|(p, q)| (q.x - p.x).powi(2) + (q.z - p.z).powi(2));
             l2.sort_by(f64::total_cmp);
             assert!(l2[0] == l2[1] && l2[0] + l2[1] == l2[2], "{:?}: {t:?} not right-isosceles", mesh.key);
