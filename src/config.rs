@@ -118,7 +118,7 @@ pub struct Config {
 /// hold, so every chunk stays small enough to cull and page finely. A dense
 /// top chunk of rough ground at a small error then makes refine levels,
 /// which keep the top of the tree coarse for its footprint. Allowing
-/// 2^20 − 1 (tried as the default for one stop) dropped them: California
+/// 2^20 − 1 as the default dropped them: California
 /// at 1 m in 7 levels and 10 922 chunks instead of 9 and 27 270, 11 % fewer
 /// surface vertices and 15 % fewer bytes, but every δ above the leaves
 /// then sat on a footprint four times wider, and the viewer's cut along
