@@ -159,7 +159,7 @@ impl OutDir {
                 return Err(OutDirError::NotATileset(out.into()));
             }
         }
-        let tmp = parent.join(sibling(name, "tmp", std::process::id()));
+        let tmp = parent.join(sibling(name, "tmp", &build_tag()));
         std::fs::create_dir(&tmp).map_err(io(&tmp))?;
         (claimed.path, claimed.tmp) = (path, tmp);
         std::fs::write(claimed.tmp.join(OWNER), format!("{}\n{}\n", host(), std::process::id()))
@@ -283,12 +283,22 @@ pub fn is_tileset(dir: &Path) -> bool {
     small_file && std::fs::read_to_string(&marker).is_ok_and(|t| t.starts_with(tag))
 }
 
-/// `.NAME.terrachunk-KIND-PID`: a build's temporary (`tmp`) or set-aside
-/// (`old`) folder beside OUT.
-fn sibling(name: &OsStr, kind: &str, pid: u32) -> OsString {
+/// `PID`, or `PID-N` for the Nth build of this process (builds of one
+/// process, e.g. a library's user, into one place need their own folders).
+fn build_tag() -> String {
+    static BUILDS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    match BUILDS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) {
+        0 => std::process::id().to_string(),
+        n => format!("{}-{n}", std::process::id()),
+    }
+}
+
+/// `.NAME.terrachunk-KIND-TAG`: a build's temporary (`tmp`) or set-aside
+/// (`old`) folder beside OUT, `TAG` from [`build_tag`].
+fn sibling(name: &OsStr, kind: &str, tag: &str) -> OsString {
     let mut s = OsString::from(".");
     s.push(name);
-    s.push(format!(".terrachunk-{kind}-{pid}"));
+    s.push(format!(".terrachunk-{kind}-{tag}"));
     s
 }
 
@@ -299,8 +309,10 @@ fn parse_sibling<'a>(name: &OsStr, entry: &'a OsStr) -> Option<(&'a str, u32)> {
     prefix.push(name);
     prefix.push(".terrachunk-");
     let rest = entry.strip_prefix(prefix.to_str()?)?;
-    let (kind, pid) = rest.split_once('-')?;
-    let pid = pid.parse().ok().filter(|_| pid.bytes().all(|b| b.is_ascii_digit()))?;
+    let (kind, tag) = rest.split_once('-')?;
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    let pid = tag.split_once('-').filter(|(_, n)| digits(n)).map_or(tag, |(pid, _)| pid);
+    let pid = pid.parse().ok().filter(|_| digits(pid))?;
     matches!(kind, "tmp" | "old").then_some((kind, pid))
 }
 
@@ -336,16 +348,15 @@ fn recover(parent: &Path, name: &OsStr, out: &Path) -> Result<(), OutDirError> {
 
 /// Whether the build that made the temporary folder `dir` may still be
 /// running: its owner file names this machine (or is missing) and process
-/// `pid` is alive. Another machine's folder counts as dead (its build
-/// cannot be asked), as does one of this process (its build has ended:
-/// a running build holds its own folder claimed).
+/// `pid` is alive (this one included: its other builds may be running).
+/// Another machine's folder counts as dead: its build cannot be asked.
 fn owner_alive(dir: &Path, pid: u32) -> bool {
     if let Ok(text) = std::fs::read_to_string(dir.join(OWNER))
         && text.lines().next().is_some_and(|h| h != host())
     {
         return false;
     }
-    pid != std::process::id() && process_alive(pid)
+    pid == std::process::id() || process_alive(pid)
 }
 
 #[cfg(unix)]
@@ -411,7 +422,7 @@ fn exchange_in_two(a: &Path, b: &Path) -> std::io::Result<()> {
     let (Some(parent), Some(name)) = (b.parent(), b.file_name()) else {
         return Err(std::io::ErrorKind::InvalidInput.into());
     };
-    let aside = parent.join(sibling(name, "old", std::process::id()));
+    let aside = parent.join(sibling(name, "old", &build_tag()));
     std::fs::rename(b, &aside)?;
     if let Err(e) = rename_new(a, b) {
         let _ = std::fs::rename(&aside, b);
@@ -427,10 +438,17 @@ mod tests {
     #[test]
     fn siblings_are_told_apart_from_other_names() {
         let name = OsStr::new("out");
-        assert_eq!(sibling(name, "tmp", 42), OsStr::new(".out.terrachunk-tmp-42"));
+        assert_eq!(sibling(name, "tmp", "42"), OsStr::new(".out.terrachunk-tmp-42"));
         assert_eq!(parse_sibling(name, OsStr::new(".out.terrachunk-tmp-42")), Some(("tmp", 42)));
+        assert_eq!(parse_sibling(name, OsStr::new(".out.terrachunk-tmp-42-3")), Some(("tmp", 42)));
         assert_eq!(parse_sibling(name, OsStr::new(".out.terrachunk-old-7")), Some(("old", 7)));
-        for other in [".out.terrachunk-tmp-", ".out.terrachunk-tmp-+4", ".out2.terrachunk-tmp-4", ".o.terrachunk-x-4"] {
+        for other in [
+            ".out.terrachunk-tmp-",
+            ".out.terrachunk-tmp-+4",
+            ".out2.terrachunk-tmp-4",
+            ".o.terrachunk-x-4",
+            ".out.terrachunk-tmp-4-",
+        ] {
             assert_eq!(parse_sibling(name, OsStr::new(other)), None, "{other}");
         }
     }

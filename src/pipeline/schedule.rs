@@ -516,8 +516,6 @@ impl Run<'_> {
         Ok(all)
     }
 
-    /// Meshes, assembles, textures and writes one chunk.
-
     /// Builds one chunk: shaped, then textured, encoded and written.
     fn chunk(&self, key: ChunkKey, parent: Option<&ChunkMesh>) -> Result<(ChunkMesh, BuiltChunk), BuildError> {
         let (mesh, meshed) = self.mesh_chunk(key, parent)?;
