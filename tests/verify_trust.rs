@@ -138,7 +138,8 @@ fn inspect_counts_nan_positions_instead_of_printing_finite_bounds() {
     let text = String::from_utf8_lossy(&o.stdout);
     // The surface's 188 positions are counted; the bounds are the skirt's
     // alone, and say so.
-    let surface: usize = text.lines().find_map(|l| l.strip_prefix("surface    ")?.split(' ').next()?.parse().ok()).unwrap();
+    let surface: usize =
+        text.lines().find_map(|l| l.strip_prefix("surface    ")?.split(' ').next()?.parse().ok()).unwrap();
     assert!(text.contains(&format!("NOT FINITE {surface} positions (NaN or infinite)")), "{text}");
     assert!(text.contains("(m) of the finite positions"), "{text}");
     fails_naming(&out, "1/0/1", "positions are not finite");

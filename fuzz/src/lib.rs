@@ -130,7 +130,11 @@ fn template() -> &'static Template {
         while let Some(d) = stack.pop() {
             for e in std::fs::read_dir(&d).expect("tiles folder") {
                 let p = e.expect("entry").path();
-                if p.is_dir() { stack.push(p) } else { chunks.push(p.strip_prefix(&dir).expect("inside").to_path_buf()) }
+                if p.is_dir() {
+                    stack.push(p)
+                } else {
+                    chunks.push(p.strip_prefix(&dir).expect("inside").to_path_buf())
+                }
             }
         }
         chunks.sort();

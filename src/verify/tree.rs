@@ -47,7 +47,7 @@ impl Obb {
         let half = [0, 1, 2].map(|a| [n[3 + 3 * a], n[4 + 3 * a], n[5 + 3 * a]]);
         let len = half.map(|h| dot(h, h).sqrt());
         let square = (0..3).all(|a| (a + 1..3).all(|b| dot(half[a], half[b]).abs() <= 1e-9 * len[a] * len[b]));
-        if len.iter().any(|&l| l == 0.0) || !square {
+        if len.contains(&0.0) || !square {
             return Err("boundingVolume.box has a half-axis of length 0 or two that are not at right angles".into());
         }
         Ok(Obb { centre: [n[0], n[1], n[2]], half })
