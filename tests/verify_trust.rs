@@ -322,7 +322,7 @@ fn verify_rejects_a_childs_box_shrunk_or_moved() {
     fails_naming(&out, &name, "outside the tile's bounding box");
     set_box(&|b| b[0] = json!(b[0].as_f64().unwrap() + 1e6));
     fails_naming(&out, &name, "outside the tile's bounding box");
-    fails_naming(&out, &name, "bounding box reaches outside its parent 0/0/0's");
+    fails_naming(&out, &name, "bounding box reaches outside the box of its parent 0/0/0");
     set_box(&|b| b[3] = json!(0.0));
     fails_naming(&out, &name, "half-axis of length 0");
 }
