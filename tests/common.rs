@@ -43,7 +43,13 @@ pub(crate) fn build_ok(dem: &Path, max_error_m: f64) -> (tempfile::TempDir, Path
 /// on the parent surface.
 #[track_caller]
 pub(crate) fn verified(out: &Path) -> VerifyReport {
-    let r = verify(out, Some(&dem_of(out))).unwrap();
+    verified_against(out, &dem_of(out))
+}
+
+/// [`verified`] against the DEM files `dem`.
+#[track_caller]
+pub(crate) fn verified_against(out: &Path, dem: &[PathBuf]) -> VerifyReport {
+    let r = verify(out, Some(dem)).unwrap();
     assert!(r.failures.is_empty(), "verify failed for {}:\n{}", out.display(), r.failures.join("\n"));
     r
 }

@@ -40,8 +40,8 @@ use terrachunk::pipeline::{LevelReport, Report, build};
 use terrachunk::verify::{VerifyReport, verify};
 
 use crate::common::{
-    all_files, assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, with_config, write_asc,
-    write_asc_spaced,
+    all_files, assert_bad_input, assert_finite_output, khronos_validate, tileset, verified, verified_against,
+    with_config, write_asc, write_asc_spaced,
 };
 
 /// What a hard case left behind, all checks passed.
@@ -74,7 +74,7 @@ fn survives(dem: &Path, cfg: Config) -> Built {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let report = build(&with_config(dem, &out, cfg)).unwrap_or_else(|e| panic!("{}: {e}", dem.display()));
-    let verify = verified(&out);
+    let verify = verified_against(&out, &[dem.to_path_buf()]);
     let glbs = assert_finite_output(&out);
     let chunks: usize = report.levels.iter().map(|l| l.chunks).sum();
     assert_eq!(glbs, chunks, "one .glb per chunk");

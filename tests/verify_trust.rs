@@ -113,7 +113,11 @@ fn read_tile_takes_only_relative_paths_to_regular_files_inside_the_tileset() {
     }
     let e = read_tile(&out, "tiles/0").unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
-    assert!(MAX_TILE_BYTES >= 1 << 30);
+    // A chunk over the size limit is refused from its length alone.
+    let big = out.join("tiles/0/0/0.glb");
+    std::fs::File::options().append(true).open(&big).unwrap().set_len(MAX_TILE_BYTES + 1).unwrap();
+    let e = read_tile(&out, "tiles/0/0/0.glb").unwrap_err().to_string();
+    assert!(e.contains(&format!("over the {MAX_TILE_BYTES}-byte limit")), "{e}");
 }
 
 #[test]
@@ -229,7 +233,7 @@ fn verify_uses_the_dem_beside_the_tileset_only_when_its_content_matches() {
     let e = verify(&out, None).unwrap_err().to_string();
     assert!(e.contains("crop.asc") && e.contains("its content differs") && e.contains("--dem"), "{e}");
     // `--dem` still takes the user's file as given.
-    assert!(verify(&out, Some(&[dem.clone()])).is_ok());
+    assert!(verify(&out, Some(std::slice::from_ref(&dem))).is_ok());
     // Missing, a FIFO (no hang), a link to another file: each says why.
     std::fs::remove_file(&dem).unwrap();
     let e = verify(&out, None).unwrap_err().to_string();
@@ -318,7 +322,7 @@ fn verify_rejects_a_childs_box_shrunk_or_moved() {
     fails_naming(&out, &name, "outside the tile's bounding box");
     set_box(&|b| b[0] = json!(b[0].as_f64().unwrap() + 1e6));
     fails_naming(&out, &name, "outside the tile's bounding box");
-    fails_naming(&out, &name, "bounding box reaches outside its parent 0/0/0's");
+    fails_naming(&out, &name, "bounding box reaches outside the box of its parent 0/0/0");
     set_box(&|b| b[3] = json!(0.0));
     fails_naming(&out, &name, "half-axis of length 0");
 }

@@ -127,7 +127,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     };
 
     let mut heights = vec![f32::NAN; n];
-    let dec = read_chunks(path, dec, &fences, file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
+    let dec = read_chunks(path, (dec, &fences), file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
         place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
     })?;
 
@@ -165,8 +165,7 @@ fn tag_limits(file_len: u64) -> Limits {
 /// TileByteCounts entry declares: a chunk that needs more is an error.
 fn read_chunks(
     path: &Path,
-    dec: TiffDecoder,
-    fences: &Fences,
+    (dec, fences): (TiffDecoder, &Fences),
     file_len: u64,
     (width, height): (usize, usize),
     bytes_per_pixel: usize,
@@ -626,7 +625,7 @@ pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
     check_chunks_present(path, &mut dec, file_len, (width, height), 3)?;
     let s = samples as usize;
     let mut rgb = vec![0u8; width * height * 3];
-    let dec = read_chunks(path, dec, &fences, file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
+    let dec = read_chunks(path, (dec, &fences), file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
         let DecodingResult::U8(data) = chunk else {
             return Err(corrupt(path, "8-bit samples decoded to another type"));
         };

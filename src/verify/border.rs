@@ -136,11 +136,12 @@ pub(super) fn compare_border(a: &ChunkFile, b: &ChunkFile, east: bool, spacing: 
 
 #[cfg(test)]
 mod tests {
+    use std::collections::BTreeMap;
+    use std::path::Path;
+
     use super::*;
     use crate::quadtree::ChunkKey;
     use crate::verify::read_chunk;
-    use std::collections::BTreeMap;
-    use std::path::Path;
 
     /// The border comparisons give the same answer on chunks cut down to
     /// their borders as on the whole chunks, on a real build (untextured,

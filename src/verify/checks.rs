@@ -35,7 +35,8 @@ pub(super) fn not_finite(c: &ChunkFile) -> Vec<String> {
 
 /// Normals: every primitive has one per vertex, finite and of unit length
 /// (within the rounding of its encoding: an i8 component rounds by half of
-/// 1/127), pointing up. Every written triangle faces up (a heightfield
+/// 1/127), pointing up within that rounding (an i8 normal of a cliff
+/// rounds to y = 0). Every written triangle faces up (a heightfield
 /// seen from above; `turned_over` finds the ones that do not), so a normal
 /// that agrees with the triangles it belongs to has a positive y; skirt
 /// vertices carry their top vertex's normal.
@@ -51,7 +52,7 @@ pub(super) fn normals(c: &ChunkFile, problems: &mut Vec<String>) {
             let len = n.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
             if !(len - 1.0).abs().le(&tolerance) {
                 bad += 1;
-            } else if n[1] <= 0.0 {
+            } else if n[1] < -tolerance {
                 down += 1;
             }
         }
