@@ -298,7 +298,7 @@ impl Viewer {
     }
 
     /// Marks what the selection keeps: the cut's chunks as used this frame,
-    /// the prefetched ones as of the frame before (evicted first).
+    /// the prefetched ones from the frame before (evicted first).
     fn touch(&mut self, sel: &Selection) {
         for n in &sel.kept {
             if let Some(c) = self.cache.get_mut(n) {
