@@ -52,7 +52,7 @@ pub(super) fn normals(c: &ChunkFile, problems: &mut Vec<String>) {
             let len = n.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
             if !(len - 1.0).abs().le(&tolerance) {
                 bad += 1;
-            } else if n[1] < -tolerance {
+            } else if f64::from(n[1]) < -tolerance {
                 down += 1;
             }
         }
