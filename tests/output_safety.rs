@@ -12,7 +12,7 @@ use std::time::Duration;
 use serde_json::Value;
 use terrachunk::pipeline::out_dir::{MARKER, OutDir, OutDirError};
 
-use crate::common::{cli, fixture, verified, write_asc};
+use crate::common::{cli, fixture, verified, verified_against, write_asc};
 
 fn cli_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_terrachunk")).current_dir(dir).args(args).output().unwrap()
@@ -163,7 +163,7 @@ fn force_replaces_only_a_tileset_this_tool_wrote() {
     std::fs::create_dir(&empty).unwrap();
     assert!(build(&empty, true).status.success());
     assert_whole_tileset(&empty);
-    verified(&out);
+    verified_against(&out, std::slice::from_ref(&dem));
     assert!(leftovers(tmp.path()).is_empty(), "{:?}", leftovers(tmp.path()));
     assert_eq!(std::fs::read_to_string(d.join("notes.txt")).unwrap(), "keep");
 }

@@ -504,6 +504,8 @@ pub fn merge(manifest_path: &Path) -> Result<Merged, ShardError> {
         std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
         let index = tmp.join("tileset.json");
         std::fs::write(&index, &bytes).map_err(io(&index))?;
+        let marker = tmp.join(crate::pipeline::out_dir::MARKER);
+        std::fs::write(&marker, crate::pipeline::out_dir::MARKER_TEXT).map_err(io(&marker))?;
         if m.out.exists() {
             std::fs::remove_dir_all(&m.out).map_err(io(&m.out))?;
         }

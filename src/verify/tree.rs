@@ -267,15 +267,33 @@ pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<S
 
 /// The footprints `[x0, x1, z0, z1]` a chunk's children tile: its four
 /// quarters (two or one along an axis too short to cut), or itself once
-/// on a level that refines in place (`split` false).
-fn quarters(f: [u32; 4], split: bool) -> Vec<[u32; 4]> {
-    let halves = |a: u32, b: u32| match midpoint((a, b)).filter(|_| split) {
+/// on a level that refines in place (`split` false); `kids` are the
+/// children's footprints as their files give them.
+fn quarters(f: [u32; 4], split: bool, kids: &[[u32; 4]]) -> Vec<[u32; 4]> {
+    // The cut along one axis: where the children put it when they all agree
+    // on one line strictly inside (the bintree's cuts sit on powers of two),
+    // else the midpoint the quadtree uses.
+    let cut = |lo: usize, a: u32, b: u32| {
+        let at: std::collections::BTreeSet<u32> = kids
+            .iter()
+            .filter_map(|k| match (k[lo] == a && k[lo + 1] < b, k[lo + 1] == b && k[lo] > a) {
+                (true, _) => Some(k[lo + 1]),
+                (_, true) => Some(k[lo]),
+                _ => None,
+            })
+            .collect();
+        match at.iter().collect::<Vec<_>>()[..] {
+            [&m] if m > a && m < b => Some(m),
+            _ => midpoint((a, b)),
+        }
+    };
+    let halves = |lo: usize, a: u32, b: u32| match cut(lo, a, b).filter(|_| split) {
         Some(m) => vec![(a, m), (m, b)],
         None => vec![(a, b)],
     };
     let mut out = Vec::new();
-    for (z0, z1) in halves(f[2], f[3]) {
-        for (x0, x1) in halves(f[0], f[1]) {
+    for (z0, z1) in halves(2, f[2], f[3]) {
+        for (x0, x1) in halves(0, f[0], f[1]) {
             out.push([x0, x1, z0, z1]);
         }
     }
@@ -307,7 +325,8 @@ pub(super) fn check_tree(
             tile.children.iter().map(|c| footprints.get(c).map(|f| (*c, *f))).collect();
         let Some(kids) = kids else { continue }; // an unreadable child is its own failure
         let split = kids.iter().any(|(_, cf)| *cf != f);
-        let expected = quarters(f, split);
+        let kid_footprints: Vec<[u32; 4]> = kids.iter().map(|(_, cf)| *cf).collect();
+        let expected = quarters(f, split, &kid_footprints);
         let mut taken: BTreeMap<[u32; 4], ChunkKey> = BTreeMap::new();
         for (c, cf) in &kids {
             if !expected.contains(cf) {
