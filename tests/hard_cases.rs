@@ -850,7 +850,7 @@ fn verifies_in_every_mode(dem: &Path) -> Vec<(Compress, Vec<ShapeSummary>)> {
             let out = tmp.path().join("out");
             let cfg = Config { compress, ..Config::default() };
             build(&with_config(dem, &out, cfg)).unwrap_or_else(|e| panic!("{} {compress:?}: {e}", dem.display()));
-            let v = verify(&out, None).unwrap();
+            let v = verify(&out, Some(std::slice::from_ref(&dem.to_path_buf()))).unwrap();
             assert!(v.failures.is_empty(), "{} {compress:?}:\n{}", dem.display(), v.failures.join("\n"));
             let shapes: Vec<ShapeSummary> = v.levels.values().map(|l| l.shape).collect();
             assert!(shapes.iter().map(|s| s.triangles).sum::<usize>() > 0);

@@ -274,6 +274,10 @@ fn quarters(f: [u32; 4], split: bool, kids: &[[u32; 4]]) -> Vec<[u32; 4]> {
     // on one line strictly inside (the bintree's cuts sit on powers of two),
     // else the midpoint the quadtree uses.
     let cut = |lo: usize, a: u32, b: u32| {
+        // Every child spans the whole axis: the level cuts only the other one.
+        if !kids.is_empty() && kids.iter().all(|k| k[lo] == a && k[lo + 1] == b) {
+            return None;
+        }
         let at: std::collections::BTreeSet<u32> = kids
             .iter()
             .filter_map(|k| match (k[lo] == a && k[lo + 1] < b, k[lo + 1] == b && k[lo] > a) {
