@@ -357,7 +357,12 @@ fn meshopt_modes_decode_to_what_quantize_writes_and_pack_under_ten_bytes_per_ver
     // The two normal encodings differ (else this test would not tell them apart).
     let (q, n) = (all_files(&tmp.path().join("quantize")), all_files(&tmp.path().join("quantize-nearest")));
     let glb = |p: &std::path::Path| p.extension().is_some_and(|e| e == "glb");
-    assert!(q.iter().zip(&n).filter(|((p, _), _)| glb(p)).any(|((_, a), (_, b))| decoded_views(a)[1] != decoded_views(b)[1]));
+    assert!(
+        q.iter()
+            .zip(&n)
+            .filter(|((p, _), _)| glb(p))
+            .any(|((_, a), (_, b))| decoded_views(a)[1] != decoded_views(b)[1])
+    );
 }
 
 /// Half a horizontal step moves a cut point (off the sample grid) along its
