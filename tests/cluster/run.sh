@@ -88,7 +88,7 @@ same() {
     diff -rq "$work/whole" "$1" | head >&2
     exit 1
   fi
-  "$bin" verify "$1" >"$work/verify.log" || { cat "$work/verify.log" >&2; exit 1; }
+  "$bin" verify "$1" --dem "$dem" >"$work/verify.log" || { cat "$work/verify.log" >&2; exit 1; }
 }
 
 # 1. Straight through.
