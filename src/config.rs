@@ -138,10 +138,11 @@ pub struct Config {
     /// as earlier versions wrote them (worst 1.14°)
     /// ([`Config::normal_encoding`]). Unused with `compress = "none"`.
     pub normal_bits: Option<u32>,
-    /// Which mesher makes each chunk's surface: `tin` (greedy insertion,
-    /// `mesh::decimate`) or `rtin` (the right-triangle bintree,
-    /// `mesh::rtin`: right-isosceles triangles only, chunks on squares of
-    /// 2^k cells). Default `tin`.
+    /// Which mesher makes each chunk's surface: `rtin` (the right-triangle
+    /// bintree, `mesh::rtin`: right-isosceles triangles only, chunks on
+    /// squares of 2^k cells, no slivers) or `tin` (greedy insertion,
+    /// `mesh::decimate`: fewer triangles, slivers on flat ground). Default
+    /// `rtin`.
     pub mesher: Mesher,
 }
 
@@ -149,11 +150,11 @@ pub struct Config {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Mesher {
-    /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
-    #[default]
-    Tin,
     /// Right-triangle bintree with true errors (`mesh::rtin`).
+    #[default]
     Rtin,
+    /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
+    Tin,
 }
 
 /// The default [`Config::max_chunk_vertices`]: 65 535, what u16 indices
@@ -323,7 +324,7 @@ impl Default for Config {
             normal_map: false,
             compress: Compress::None,
             normal_bits: None,
-            mesher: Mesher::Tin,
+            mesher: Mesher::Rtin,
         }
     }
 }

@@ -141,8 +141,9 @@ struct BuildArgs {
     /// [default: leaves].
     #[arg(long, value_enum)]
     thin: Option<Thin>,
-    /// Which mesher makes the chunks: `tin` (greedy insertion) or
-    /// `rtin` (right-triangle bintree, no slivers) [default: tin].
+    /// Which mesher makes the chunks: `rtin` (right-triangle bintree,
+    /// no slivers) or `tin` (greedy insertion, fewer triangles, slivers on
+    /// flat ground) [default: rtin].
     #[arg(long, value_enum)]
     mesher: Option<Mesher>,
     /// Build every chunk to the deepest level, even below one that already

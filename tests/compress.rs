@@ -16,7 +16,7 @@ use std::path::Path;
 
 use serde_json::Value;
 use terrachunk::config::NormalEncoding;
-use terrachunk::config::{Compress, Config, NORMAL_BITS_V1, VertexCache};
+use terrachunk::config::{Compress, Config, Mesher, NORMAL_BITS_V1, VertexCache};
 use terrachunk::output::compress::{cosine, decompress, octahedral};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
@@ -382,7 +382,9 @@ fn cut_points_rounded_to_the_quantize_grid_keep_delta_on_steep_ground() {
         400.0 * (0.031 * j + 0.017 * i).sin() * (0.023 * i - 0.011 * j).cos() + 30.0 * (0.9 * j).sin() * (0.7 * i).sin()
     });
     let out = tmp.path().join("out");
-    let report = build_mode(&dem, &out, Compress::Quantize, TextureSource::None, 0);
+    // Cut points are the greedy TIN's (the bintree's vertices are samples).
+    let config = Config { max_error_m: 1.0, compress: Compress::Quantize, mesher: Mesher::Tin, ..Config::default() };
+    let report = build(&with_config(&dem, &out, config)).unwrap();
     // Cut points placed on the grid while meshing: the mesher measured what
     // is written, and no chunk needs meshing again (before: 8.020 m at δ 8
     // as written, then chunks meshed again with wider margins).
@@ -406,7 +408,13 @@ fn cut_points_rounded_to_the_quantize_grid_keep_delta_on_steep_ground() {
 fn texture_coordinates_map_cut_points_where_the_file_puts_them() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
-    let config = Config { max_error_m: 5.0, leaf_cells: Some(32), compress: Compress::Quantize, ..Config::default() };
+    let config = Config {
+        max_error_m: 5.0,
+        leaf_cells: Some(32),
+        compress: Compress::Quantize,
+        mesher: Mesher::Tin,
+        ..Config::default()
+    };
     let opts = BuildOptions {
         texture: TextureSource::Generated,
         ..with_config(&fixture("mount_st_helens_30m.tif"), &out, config)

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::{Value, json};
-use terrachunk::config::{Compress, Config, Thin, VertexCache};
+use terrachunk::config::{Compress, Config, Mesher, Thin, VertexCache};
 use terrachunk::mesh::decimate::Grid;
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::build;
@@ -64,7 +64,7 @@ fn thinning_keeps_every_promise_and_takes_triangles_out() {
     ] {
         for (k, thin) in [Thin::None, Thin::Leaves, Thin::All].into_iter().enumerate() {
             let out = tmp.path().join(format!("{name}-{k}"));
-            let cfg = Config { max_error_m: max_error, thin, ..Config::default() };
+            let cfg = Config { max_error_m: max_error, thin, mesher: Mesher::Tin, ..Config::default() };
             let report = build(&with_config(&fixture(name), &out, cfg)).unwrap();
             let v = verified(&out);
             if thin == Thin::All {
@@ -107,8 +107,15 @@ fn output_is_byte_identical_with_one_and_two_threads() {
     for (name, error, files) in [("jacksboro_fault_u16.png", 1.0, 10), ("fuji_crop_terrainrgb.png", 0.25, 1)] {
         let dem = fixture(name);
         let (a, b) = (tmp.path().join(format!("{name}-one")), tmp.path().join(format!("{name}-two")));
-        let r = build(&options(&dem, &a, error, 1)).unwrap();
-        build(&options(&dem, &b, error, 2)).unwrap();
+        // Lone chunks filled by parts are the greedy TIN's.
+        let mesher = if files == 1 { Mesher::Tin } else { Mesher::Rtin };
+        let opts = |out: &Path, threads| {
+            let mut o = options(&dem, out, error, threads);
+            o.config.mesher = mesher;
+            o
+        };
+        let r = build(&opts(&a, 1)).unwrap();
+        build(&opts(&b, 2)).unwrap();
         if files == 1 {
             assert_eq!((r.levels.len(), r.levels[0].chunks), (1, 1), "{name}: a lone leaf");
             assert!(r.levels[0].vertices > 2000, "{name}: {} vertices", r.levels[0].vertices);
@@ -372,6 +379,7 @@ fn the_estimate_counts_the_chunks_a_build_makes_over_a_flat_sea() {
     let dem = write_asc(tmp.path(), "coast.asc", 257, 257, height);
     let mut o = options(&dem, &tmp.path().join("out"), 1.0, 0);
     o.config.leaf_cells = Some(32);
+    o.config.mesher = Mesher::Tin;
     let report = build(&o).unwrap();
     let built: Vec<usize> = report.levels.iter().map(|l| l.chunks).collect();
     let hf = terrachunk::dem::load(&[dem], &Default::default()).unwrap();
@@ -390,6 +398,7 @@ fn vertex_cache_modes_reorder_the_same_triangles() {
         let out = tmp.path().join("out");
         let mut o = options(&dem, &out, 2.0, 0);
         o.config.vertex_cache = Some(mode);
+        o.config.mesher = Mesher::Tin;
         build(&o).unwrap();
         let tris = surface_triangles(&out);
         (tmp, tris)
@@ -800,7 +809,7 @@ fn top_level_chunks_at_most_root_cells_wide_make_shallower_trees_with_fewer_leaf
         let out = tmp.path().join(name);
         let report = tmp.path().join(format!("{name}.json"));
         let mut args = vec!["build", g, "-o", out.to_str().unwrap(), "--texture", "none", "--max-error", "2"];
-        args.extend(["--leaf-cells", "32", "--report", report.to_str().unwrap()]);
+        args.extend(["--leaf-cells", "32", "--mesher", "tin", "--report", report.to_str().unwrap()]);
         args.extend(extra);
         let o = cli(&args);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

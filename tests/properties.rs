@@ -12,7 +12,7 @@
 //! 1 mm to 10 km; `max_error_m` spans 1 mm to 1 km, `leaf_cells` 2..=40,
 //! `root_cells` unset (one top chunk) or 2..=40 (a forest whose trees'
 //! top chunks must share their borders), and `thin` each of its three
-//! settings.
+//! settings, and each mesher (`rtin`, `tin`).
 //! 32 cases by default (`PROPTEST_CASES` overrides); failures are saved in
 //! `tests/properties.proptest-regressions` and replayed first on every run.
 //!
@@ -23,7 +23,7 @@
 use std::path::Path;
 
 use proptest::prelude::*;
-use terrachunk::config::{Config, Thin};
+use terrachunk::config::{Config, Mesher, Thin};
 use terrachunk::pipeline::build;
 use terrachunk::verify::verify;
 
@@ -167,6 +167,7 @@ proptest! {
         spacing in prop_oneof![Just([1.0, 1.0]), Just([30.0, 30.0]), Just([0.001, 0.001]), Just([10_000.0, 10_000.0]), Just([0.5, 20.0])],
         thin in prop_oneof![Just(Thin::Leaves), Just(Thin::All), Just(Thin::None)],
         root_cells in prop_oneof![Just(None), (2u32..=40).prop_map(Some)],
+        mesher in prop_oneof![Just(Mesher::Rtin), Just(Mesher::Tin)],
     ) {
         let tmp = tempfile::tempdir().unwrap();
         let dem = tmp.path().join("g.asc");
@@ -178,6 +179,7 @@ proptest! {
             root_cells,
             spacing_m: Some(spacing),
             thin,
+            mesher,
             threads: 1,
             ..Config::default()
         };
@@ -236,7 +238,12 @@ fn sliver_kept_over_nodata_stays_inside_its_parents_written_surface() {
     let dem = tmp.path().join("g.asc");
     write_grid(&dem, &grid, &grid.heights());
     let out = tmp.path().join("out");
-    let config = Config { max_error_m: 0.019_772_601_907_011_356, leaf_cells: Some(2), ..Config::default() };
+    let config = Config {
+        max_error_m: 0.019_772_601_907_011_356,
+        leaf_cells: Some(2),
+        mesher: Mesher::Tin,
+        ..Config::default()
+    };
     build(&with_config(&dem, &out, config)).unwrap();
     let v = verify(&out, None).unwrap();
     assert!(v.failures.is_empty(), "{:?}", v.failures);

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use terrachunk::config::{Config, TextureFormat, Thin};
+use terrachunk::config::{Config, Mesher, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::texture::TextureSource;
 use terrachunk::verify::verify;
@@ -510,7 +510,14 @@ fn untextured_output_is_byte_identical_to_before_textures() {
     let dem = tmp.path().join("g.asc");
     std::fs::copy(golden.join("wave_33x33.asc"), &dem).unwrap();
     let out = tmp.path().join("out");
-    let cfg = Config { max_error_m: 0.5, leaf_cells: Some(8), threads: 1, thin: Thin::None, ..Config::default() };
+    let cfg = Config {
+        max_error_m: 0.5,
+        leaf_cells: Some(8),
+        threads: 1,
+        thin: Thin::None,
+        mesher: Mesher::Tin,
+        ..Config::default()
+    };
     build_with(&dem, &out, cfg, TextureSource::None);
     let mut lines = Vec::new();
     // The index names its DEM by file name and hash, so it is the same

@@ -14,6 +14,8 @@ pub mod out_dir;
 mod report;
 mod schedule;
 
+pub(crate) use schedule::chunk_tree;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -283,7 +285,7 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
         TextureSource::Generated => Some(generated_to_px(&hf, cfg)),
     };
     let Planned { mut estimate, leaf_cells, refine } = plan_tree(&hf, &grid, cfg, to_px);
-    let tree = estimate.tree(leaf_cells, refine);
+    let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
     let lone_parts = schedule::lone_parts(&tree, &mut estimate);
     Ok(FixedPlan { grid: [hf.width, hf.height], leaf_cells, refine_levels: refine, lone_parts })
 }

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Report};
 use super::{BuildError, BuildOptions};
 use crate::chunk::Chunk;
-use crate::config::{Mesher, dense_leaf_cells};
+use crate::config::{Config, Mesher, dense_leaf_cells};
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::decimate::{CUT_SHARE, Grid, U16_INDEXED};
 use crate::mesh::rtin::{self, Rtin};
@@ -72,12 +72,7 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
     let t = Instant::now();
     let attempts = Instant::now();
     loop {
-        let tree = match opts.config.mesher {
-            Mesher::Tin => estimate.tree(leaf_cells, refine),
-            Mesher::Rtin => {
-                rtin::plan(hf.width, hf.height, opts.config.max_error_m, opts.config.root_cells, leaf_cells, refine)
-            }
-        };
+        let tree = chunk_tree(&opts.config, [hf.width, hf.height], leaf_cells, refine);
         // An attempt that stopped leaves tiles of a tree planned otherwise.
         let tiles = tmp.join("tiles");
         if tiles.exists() {
@@ -101,17 +96,28 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
                 (leaf_cells, refine) = estimate.leaf_cells(dense);
                 estimated = refine;
             }
-            // A chosen wide leaf that is too dense at max_error_m: the last
-            // level always has the leaves' footprint and δ, so refine levels
-            // cannot help.
+            // A chosen wide leaf that is too dense: a level with the leaves'
+            // footprint keeps it and its δ under every refine level added
+            // below it, so they cannot help.
             Err(BuildError::Mesh(source @ MeshError::TooDense { level, .. }))
-                if leaf_cells > dense && level == tree.depth() =>
+                if leaf_cells > dense && tree.widest_cells(level) == tree.widest_cells(tree.depth()) =>
             {
                 return Err(BuildError::LeafTooWide { leaf_cells, dense, source });
             }
             Err(BuildError::Mesh(_)) if refine < MAX_REFINE_LEVELS => refine += 1,
             Err(e) => return Err(e),
         }
+    }
+}
+
+/// The chunk tree `cfg`'s mesher needs over a grid of `size` samples: the
+/// quadtree's midpoint cuts for the TIN, squares of 2^k cells for the
+/// bintree ([`rtin::plan`]).
+pub(crate) fn chunk_tree(cfg: &Config, size: [usize; 2], leaf_cells: u32, refine: u32) -> ChunkTree {
+    let [w, h] = size;
+    match cfg.mesher {
+        Mesher::Tin => ChunkTree::plan_rooted(w, h, cfg.max_error_m, cfg.root_cells, leaf_cells, refine),
+        Mesher::Rtin => rtin::plan(w, h, cfg.max_error_m, cfg.root_cells, leaf_cells, refine),
     }
 }
 

@@ -63,7 +63,7 @@ impl FixedPlan {
     /// The tree itself.
     pub fn tree(&self, cfg: &Config) -> ChunkTree {
         let [w, h] = self.grid;
-        ChunkTree::plan_rooted(w, h, cfg.max_error_m, cfg.root_cells, self.leaf_cells, self.refine_levels)
+        crate::pipeline::chunk_tree(cfg, [w, h], self.leaf_cells, self.refine_levels)
     }
 }
 
