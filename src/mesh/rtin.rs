@@ -31,6 +31,7 @@
 //! triangle that covers no valid sample is not written.
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use rayon::prelude::*;
@@ -134,6 +135,43 @@ impl Tri {
     }
 }
 
+/// A vertex's grid place (its coordinates are whole samples).
+fn point(v: &MeshVertex) -> P {
+    (v.x as u32, v.z as u32)
+}
+
+/// Where a bintree triangle with corners `c` (in any order) would split:
+/// the midpoint of its longest side, if that is a sample.
+fn split_point(c: [P; 3]) -> Option<P> {
+    let d2 = |p: P, q: P| {
+        let (dx, dz) = (u64::from(p.0.abs_diff(q.0)), u64::from(p.1.abs_diff(q.1)));
+        dx * dx + dz * dz
+    };
+    let (a, b) = [(c[0], c[1]), (c[1], c[2]), (c[2], c[0])].into_iter().max_by_key(|&(p, q)| d2(p, q))?;
+    Tri { a, b, r: a }.midpoint()
+}
+
+/// Hashes grid places for a chunk's vertex index: a multiply per word, as
+/// places are few and not chosen by anyone hostile.
+#[derive(Default)]
+struct PointHasher(u64);
+
+impl Hasher for PointHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u32(u32::from(b));
+        }
+    }
+
+    fn write_u32(&mut self, i: u32) {
+        self.0 = (self.0.rotate_left(5) ^ u64::from(i)).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+}
+
 /// Where a triangle lies against the grid `[0, xmax] × [0, zmax]`.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Place {
@@ -232,7 +270,7 @@ impl Rtin {
             square: (x0, z0),
             delta_m,
             parent,
-            index: HashMap::new(),
+            index: HashMap::default(),
             vertices: Vec::new(),
             triangles: Vec::new(),
         };
@@ -244,13 +282,34 @@ impl Rtin {
             return Err(MeshError::TooDense { level: key.level, x: key.x, y: key.y, delta_m, limit: max_vertices });
         }
         let Mesher { vertices, triangles, .. } = m;
-        let mut kept = Vec::with_capacity(triangles.len());
+        // A triangle with a valid corner covers a valid sample; one with
+        // none is scanned to see. The largest error is measured by scanning
+        // in falling order of each triangle's stored bound (the error at
+        // its split point, 0 where it has none: it covers its corners
+        // alone) until no bound is above what was found.
+        let mut kept = vec![true; triangles.len()];
         let mut max_error_m: f64 = 0.0;
-        for t in &triangles {
+        let mut bounds: Vec<(f32, usize)> = Vec::with_capacity(triangles.len());
+        for (k, t) in triangles.iter().enumerate() {
             let corners = t.map(|v| vertices[v as usize]);
-            let scan = scan_triangle(grid, &corners);
-            kept.push(scan.valid);
-            max_error_m = max_error_m.max(scan.error);
+            let at = |v: &MeshVertex| grid.heights[v.z as usize * grid.width + v.x as usize];
+            if corners.iter().all(|v| at(v).is_nan()) {
+                let scan = scan_triangle(grid, &corners);
+                kept[k] = scan.valid;
+                max_error_m = max_error_m.max(scan.error);
+                continue;
+            }
+            if let Some(m) = split_point(corners.map(|v| point(&v))) {
+                bounds.push((self.error_at(m.0, m.1), k));
+            }
+        }
+        bounds.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        for &(bound, k) in &bounds {
+            if f64::from(bound) <= max_error_m {
+                break;
+            }
+            let corners = triangles[k].map(|v| vertices[v as usize]);
+            max_error_m = max_error_m.max(scan_triangle(grid, &corners).error);
         }
         let relief_m = footprint_relief(grid, footprint);
         let n = triangles.len();
@@ -528,7 +587,7 @@ struct Mesher<'a> {
     delta_m: f64,
     /// The parent level's square side and δ (None at the top).
     parent: Option<(u32, f64)>,
-    index: HashMap<P, u32>,
+    index: HashMap<P, u32, BuildHasherDefault<PointHasher>>,
     vertices: Vec<MeshVertex>,
     triangles: Vec<[u32; 3]>,
 }
