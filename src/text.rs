@@ -10,12 +10,18 @@ impl fmt::Display for VerifyReport {
     /// `OK` or one `FAIL` line per failure.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let r = self;
-        writeln!(f, "{:>5} {:>7} {:>10} {:>12} {:>12}", "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)")?;
+        writeln!(
+            f,
+            "{:>5} {:>7} {:>10} {:>12} {:>13} {:>11} {:>10} {:>10}",
+            "level", "chunks", "δ (m)", "max err (m)", "morph gap (m)", "triangles", "slivers %", "min angle"
+        )?;
         for (l, c) in &r.levels {
+            let s = &c.shape;
+            let share = if s.triangles == 0 { 0.0 } else { 100.0 * s.slivers as f64 / s.triangles as f64 };
             writeln!(
                 f,
-                "{l:>5} {:>7} {:>10.4} {:>12.4} {:>12.2e}",
-                c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m
+                "{l:>5} {:>7} {:>10.4} {:>12.4} {:>13.2e} {:>11} {:>10.3} {:>9.2}°",
+                c.chunks, c.delta_m, c.max_error_m, c.max_morph_gap_m, s.triangles, share, s.min_angle_deg
             )?;
         }
         writeln!(f, "{} shared borders compared", r.borders_checked)?;
