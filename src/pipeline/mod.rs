@@ -187,10 +187,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     check_extent(&hf, opts)?;
     let t_load = t0.elapsed();
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| BuildError::ThreadPool { threads, why: e.to_string() })?;
+    let pool = thread_pool(threads)?;
 
     let built = pool.install(|| schedule::build_into(&hf, opts, out.tmp()))?;
     let (mut report, tree, records, texture, [t_plan, t_source, t_chunks]) = built;
@@ -266,6 +263,33 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
     }
 }
 
+/// Each worker's stack as std gives it (2 MiB) and the signal stack std
+/// adds (at most 64 KiB with its guard page).
+const WORKER_STACK_BYTES: u64 = (2 << 20) + (64 << 10);
+
+/// The build's worker threads. Where the process's address space is
+/// limited (`ulimit -v`) and their stacks would take more than half of it,
+/// the pool is refused before any thread starts: a thread that starts but
+/// cannot map its signal stack ends in a panic inside std, not an error.
+fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, BuildError> {
+    let limit = rustix::process::getrlimit(rustix::process::Resource::As).current;
+    if let Some(limit) = limit {
+        let need = threads as u64 * WORKER_STACK_BYTES;
+        if need > limit / 2 {
+            let why = format!(
+                "their stacks need {} MB of the {} MB of address space this process may use (ulimit -v)",
+                need >> 20,
+                limit >> 20
+            );
+            return Err(BuildError::ThreadPool { threads, why });
+        }
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| BuildError::ThreadPool { threads, why: e.to_string() })
+}
+
 /// The tree [`build`] would plan for `opts`, fixed so that the jobs of a
 /// sharded build ([`crate::shard`]) all build the same one: the grid's size,
 /// the leaf width and refine levels the estimate chooses, and whether lone
@@ -301,10 +325,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
         dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
     check_extent(&hf, opts)?;
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| BuildError::ThreadPool { threads, why: e.to_string() })?;
+    let pool = thread_pool(threads)?;
     pool.install(|| {
         let filled = void_fill(&hf);
         let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
