@@ -183,17 +183,21 @@ enum Place {
     Outside,
 }
 
-/// The error field and the tree's levels: what every chunk of one build
-/// is cut from.
+/// The error field: what every chunk of one build is cut from, for any
+/// tree it [`serves`](Rtin::serves).
 pub struct Rtin {
     width: usize,
     height: usize,
     /// Per sample (row-major): the largest true error of the triangles split
-    /// there and of everything below them, in metres, rounded up to f32.
+    /// there and of everything below them, in metres, rounded up to f32 (or
+    /// a bound on the same rung).
     errors: Vec<f32>,
-    /// Per level: the side of its squares, in cells, and the δ it is meshed to.
-    sides: Vec<u32>,
-    deltas: Vec<f64>,
+    /// The side of the top squares the pass went up to.
+    top: u32,
+    /// The smallest δ (every level's is it times a power of two).
+    ladder: f64,
+    /// The height step the errors include.
+    step: Option<f64>,
 }
 
 impl Rtin {
@@ -207,25 +211,99 @@ impl Rtin {
     /// [`Rtin::new`], scanning every triangle when `exact` (else only those
     /// whose bounds straddle a δ).
     fn with_scans(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, exact: bool) -> Self {
-        let levels = tree.depth() + 1;
-        let sides: Vec<u32> = (0..levels).map(|l| square_side(tree, l)).collect();
+        let top = square_side(tree, 0);
+        let ladder = *tree.delta_m.last().expect("a tree has a level");
         let field = Field {
             grid,
             xmax: (grid.width - 1) as u32,
             zmax: (grid.height - 1) as u32,
             step: height_step.unwrap_or(0.0),
-            ladder: *tree.delta_m.last().expect("a tree has a level"),
+            ladder,
             exact,
             errors: (0..grid.width * grid.height).map(|_| AtomicU32::new(0)).collect(),
         };
         let mut c = 2;
-        while c <= sides[0] {
+        while c <= top {
             field.level(c, false);
             field.level(c, true);
             c *= 2;
         }
         let errors = field.errors.into_iter().map(|e| f32::from_bits(e.into_inner())).collect();
-        Rtin { width: grid.width, height: grid.height, errors, sides, deltas: tree.delta_m.clone() }
+        Rtin { width: grid.width, height: grid.height, errors, top, ladder, step: height_step }
+    }
+
+    /// Whether this field meshes `tree`'s chunks with heights rounded to
+    /// `height_step`: the same top squares, smallest δ and step (refine
+    /// levels change neither).
+    pub fn serves(&self, tree: &ChunkTree, height_step: Option<f64>) -> bool {
+        square_side(tree, 0) == self.top
+            && tree.delta_m.last() == Some(&self.ladder)
+            && height_step.map(f64::to_bits) == self.step.map(f64::to_bits)
+    }
+
+    /// The deepest level of `tree` (one this field serves) with a chunk that
+    /// may have more than `max_vertices` vertices, from the field alone: a
+    /// chunk's vertices are its square's corners and the samples in it
+    /// whose error exceeds its δ. `None` where every chunk fits.
+    pub fn densest_over(&self, tree: &ChunkTree, max_vertices: usize) -> Option<u32> {
+        let depth = tree.depth();
+        // Rungs 0..=depth matter (δ of level L is the ladder times 2^(depth − L)).
+        let bins = depth as usize + 2;
+        let mut by_side: Vec<(u32, Vec<usize>)> = Vec::new();
+        for level in (0..=depth).rev() {
+            let s = square_side(tree, level);
+            if by_side.last().is_none_or(|(side, _)| *side != s) {
+                by_side.push((s, self.densest_squares(s, bins)));
+            }
+            // Samples above rung `depth − level` exceed this level's δ.
+            let densest = by_side.last().expect("pushed above").1[(depth - level) as usize];
+            if densest + 4 > max_vertices {
+                return Some(level);
+            }
+        }
+        None
+    }
+
+    /// Per rung k (0..bins − 1), the most samples any closed square of side
+    /// `s` (aligned to `s`) holds above rung k; the last bin takes every
+    /// higher rung.
+    fn densest_squares(&self, s: u32, bins: usize) -> Vec<usize> {
+        let (wc, hc) = ((self.width - 1) as u32, (self.height - 1) as u32);
+        let (nx, nz) = (wc.div_ceil(s).max(1) as usize, hc.div_ceil(s).max(1));
+        (0..nz)
+            .into_par_iter()
+            .map(|bz| {
+                let mut h = vec![0u32; nx * bins];
+                let z0 = bz * s;
+                for z in z0..=(z0 + s).min(hc) {
+                    let row = &self.errors[z as usize * self.width..][..self.width];
+                    for (x, &e) in row.iter().enumerate() {
+                        if f64::from(e) <= self.ladder {
+                            continue;
+                        }
+                        let k = (rung(e, self.ladder) as usize).min(bins - 1);
+                        let x = x as u32;
+                        let i = (x / s) as usize;
+                        if i < nx {
+                            h[i * bins + k] += 1;
+                        }
+                        if x.is_multiple_of(s) && x > 0 {
+                            h[(i - 1) * bins + k] += 1;
+                        }
+                    }
+                }
+                // Per square, the count above each rung; the band's most.
+                let mut most = vec![0usize; bins];
+                for sq in h.chunks(bins) {
+                    let mut above = 0usize;
+                    for k in (0..bins).rev() {
+                        most[k] = most[k].max(above);
+                        above += sq[k] as usize;
+                    }
+                }
+                most
+            })
+            .reduce(|| vec![0; bins], |a, b| a.iter().zip(&b).map(|(x, y)| *x.max(y)).collect())
     }
 
     /// The error stored at a vertex (0 for a leaf vertex, ∞ where a
@@ -251,16 +329,16 @@ impl Rtin {
         }
         let level = key.level as usize;
         let footprint = tree.footprint(key);
-        let delta_m = self.deltas[level];
-        let side = self.sides[level];
+        let delta_m = tree.delta_m[level];
+        let side = square_side(tree, key.level);
         let ((x0, _), (z0, _)) = footprint;
         // Descend from the parent's square (its corners are parent vertices,
         // so their parent-surface height is their own), or the chunk's own.
         let (from, parent) = match level {
             0 => ((x0, z0, side), None),
             _ => {
-                let ps = self.sides[level - 1];
-                (((x0 / ps) * ps, (z0 / ps) * ps, ps), Some((ps, self.deltas[level - 1])))
+                let ps = square_side(tree, key.level - 1);
+                (((x0 / ps) * ps, (z0 / ps) * ps, ps), Some((ps, tree.delta_m[level - 1])))
             }
         };
         let mut m = Mesher {
@@ -829,6 +907,27 @@ mod tests {
                             "{:?} at ({}, {}): {} against the parent's {}", m.key, x, z, morphed, there);
                     }
                 }
+            }
+        }
+
+        /// The count from the field alone bounds every chunk's vertices, and
+        /// some chunk of each level has at least as many.
+        #[test]
+        fn counted_vertices_bound_every_chunk((w, h, heights, err, leaf) in heights_strategy()) {
+            let grid = Grid::new(w, h, &heights, None);
+            let tree = plan(w, h, err, None, leaf, 0);
+            let rtin = Rtin::new(&grid, &tree, None);
+            let bins = tree.depth() as usize + 2;
+            for level in 0..=tree.depth() {
+                let counted = rtin.densest_squares(square_side(&tree, level), bins)[(tree.depth() - level) as usize];
+                let l = level as usize;
+                let most = (0..tree.zs[l].len() as u32)
+                    .flat_map(|y| (0..tree.xs[l].len() as u32).map(move |x| ChunkKey { level, x, y }))
+                    .map(|key| rtin.build_chunk(&grid, &tree, key, usize::MAX, None).unwrap().vertices.len())
+                    .max()
+                    .unwrap();
+                prop_assert!(most <= counted + 4 && most >= counted, "level {}: {} vertices, counted {}", level, most, counted);
+                prop_assert_eq!(rtin.densest_over(&tree, counted + 4).is_none_or(|l| l != level), true);
             }
         }
 

@@ -308,7 +308,10 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
         TextureSource::Image(path) => Some(load_image(path, &hf)?.to_px),
         TextureSource::Generated => Some(generated_to_px(&hf, cfg)),
     };
-    let Planned { mut estimate, leaf_cells, refine } = plan_tree(&hf, &grid, cfg, to_px);
+    let Planned { mut estimate, leaf_cells, mut refine } = plan_tree(&hf, &grid, cfg, to_px);
+    if cfg.mesher == crate::config::Mesher::Rtin {
+        refine = schedule::counted_refine(&hf, &grid, cfg, leaf_cells, 0, &mut None);
+    }
     let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
     let lone_parts = schedule::lone_parts(&tree, &mut estimate);
     Ok(FixedPlan { grid: [hf.width, hf.height], leaf_cells, refine_levels: refine, lone_parts })
@@ -337,8 +340,9 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
         let tree = plan.tree(cfg);
         std::fs::create_dir_all(dir).map_err(|source| BuildError::Io { path: dir.into(), source })?;
         let target = schedule::Target { dir, part: Some(part) };
+        let meshing = schedule::Meshing { lone_parts: plan.lone_parts, field: None };
         let (mut report, records, texture) =
-            schedule::build_levels(&hf, &grid, &tree, colour.as_ref(), opts, target, plan.lone_parts)?;
+            schedule::build_levels(&hf, &grid, &tree, colour.as_ref(), opts, target, meshing)?;
         report.threads = threads;
         report.peak_rss_bytes = peak_rss();
         let mut extras = tileset_extras(&hf, opts, &tree);

@@ -67,11 +67,20 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
     // relief against a small error) gets a larger δ: one more level at the
     // bottom refines the leaves in place, and every δ above doubles.
     let Planned { mut estimate, mut leaf_cells, mut refine } = plan;
+    if opts.config.mesher == Mesher::Rtin {
+        // Counted exactly below, from the bintree's own errors.
+        refine = 0;
+    }
     let mut estimated = refine;
     let dense = dense_leaf_cells(opts.config.max_chunk_vertices);
     let t = Instant::now();
     let attempts = Instant::now();
+    let mut field: Option<Rtin> = None;
     loop {
+        if opts.config.mesher == Mesher::Rtin {
+            refine = counted_refine(hf, &grid, &opts.config, leaf_cells, refine, &mut field);
+            estimated = estimated.max(refine);
+        }
         let tree = chunk_tree(&opts.config, [hf.width, hf.height], leaf_cells, refine);
         // An attempt that stopped leaves tiles of a tree planned otherwise.
         let tiles = tmp.join("tiles");
@@ -80,7 +89,9 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
         }
         let discarded = attempts.elapsed();
         let lone_parts = lone_parts(&tree, &mut estimate);
-        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, Target { dir: tmp, part: None }, lone_parts) {
+        let target = Target { dir: tmp, part: None };
+        let meshing = Meshing { lone_parts, field: field.as_ref() };
+        match build_levels(hf, &grid, &tree, colour.as_ref(), opts, target, meshing) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
                 report.refine_estimated = estimated;
@@ -108,6 +119,45 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
             Err(e) => return Err(e),
         }
     }
+}
+
+/// The refine levels (at least `refine`) that the bintree's chunks need over
+/// leaves of `leaf_cells`, counted from its error field (made or remade in
+/// `field` as the tree needs): a coarse chunk with more vertices than
+/// `max_chunk_vertices` gets one more level at the bottom, which doubles
+/// every δ above. A level with the leaves' footprint that does not fit
+/// keeps its δ under any refine level, so it stops the count (the build
+/// then says which setting to change).
+pub(crate) fn counted_refine(
+    hf: &Heightfield,
+    grid: &Grid,
+    cfg: &Config,
+    leaf_cells: u32,
+    mut refine: u32,
+    field: &mut Option<Rtin>,
+) -> u32 {
+    loop {
+        let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
+        let step = height_step(hf, &tree, cfg);
+        if !field.as_ref().is_some_and(|f| f.serves(&tree, step)) {
+            *field = Some(Rtin::new(grid, &tree, step));
+        }
+        let f = field.as_ref().expect("made above");
+        match f.densest_over(&tree, cfg.max_chunk_vertices as usize) {
+            Some(level)
+                if refine < MAX_REFINE_LEVELS && tree.widest_cells(level) != tree.widest_cells(tree.depth()) =>
+            {
+                refine += 1
+            }
+            _ => return refine,
+        }
+    }
+}
+
+/// The height step quantized output rounds `tree`'s heights to, if any
+/// (a plan that fails is reported by the build).
+fn height_step(hf: &Heightfield, tree: &ChunkTree, cfg: &Config) -> Option<f64> {
+    cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m).ok().map(|q| q.step_y_m)).flatten()
 }
 
 /// The chunk tree `cfg`'s mesher needs over a grid of `size` samples: the
@@ -148,6 +198,14 @@ pub(super) struct Target<'p> {
     pub(super) part: Option<&'p TreePart>,
 }
 
+/// What the plan decided for the mesher beyond the tree: whether lone
+/// chunks fill by parts (the TIN), and the bintree's error field where one
+/// was made for the tree already.
+pub(super) struct Meshing<'r> {
+    pub(super) lone_parts: bool,
+    pub(super) field: Option<&'r Rtin>,
+}
+
 pub(super) fn build_levels(
     hf: &Heightfield,
     grid: &Grid,
@@ -155,9 +213,10 @@ pub(super) fn build_levels(
     colour: Option<&ColourSource>,
     opts: &BuildOptions,
     target: Target,
-    lone_parts: bool,
+    meshing: Meshing,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
     let Target { dir: tmp, part } = target;
+    let Meshing { lone_parts, field } = meshing;
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
@@ -165,7 +224,16 @@ pub(super) fn build_levels(
     let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
     let quantization = cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m)).transpose()?;
     let t = Instant::now();
-    let rtin = (cfg.mesher == Mesher::Rtin).then(|| Rtin::new(grid, tree, quantization.as_ref().map(|q| q.step_y_m)));
+    let step = quantization.as_ref().map(|q| q.step_y_m);
+    let own;
+    let rtin = match (cfg.mesher, field) {
+        (Mesher::Rtin, Some(f)) if f.serves(tree, step) => Some(f),
+        (Mesher::Rtin, _) => {
+            own = Rtin::new(grid, tree, step);
+            Some(&own)
+        }
+        (Mesher::Tin, _) => None,
+    };
     let run = Run {
         hf,
         grid,
@@ -182,7 +250,7 @@ pub(super) fn build_levels(
         },
         texturer: texturer.as_ref(),
         lone_parts,
-        rtin: rtin.as_ref(),
+        rtin,
         part,
         timers: Timers {
             mesh: AtomicU64::new(0),
