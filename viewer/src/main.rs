@@ -276,9 +276,13 @@ fn headless(cli: &Cli) -> Result<()> {
         Ok(())
     };
     if let Some(path) = &cli.flythrough {
-        // Frames back to back: whatever is not loaded yet is simply not
-        // drawn finer (see the pending_loads column).
+        // The start view is loaded first, as a viewer opening on it would;
+        // then frames back to back: whatever is not loaded yet is simply
+        // not drawn finer (see the pending_loads column).
         let frames = Flythrough::read(path)?.frames(&cam);
+        if let Some(first) = frames.first() {
+            v.settle(first, cli.size)?;
+        }
         let (mut total, mut worst, mut over, mut blank) = (0.0, 0.0f64, 0, 0);
         if let Some(d) = &cli.frames {
             std::fs::create_dir_all(d).with_context(|| format!("{}: cannot create", d.display()))?;
