@@ -389,7 +389,6 @@ impl Rtin {
             let corners = triangles[k].map(|v| vertices[v as usize]);
             max_error_m = max_error_m.max(scan_triangle(grid, &corners).error);
         }
-        let relief_m = footprint_relief(grid, footprint);
         let n = triangles.len();
         Ok(ChunkMesh {
             key,
@@ -400,7 +399,8 @@ impl Rtin {
             kept,
             max_error_m,
             max_error_near_cuts_m: 0.0,
-            relief_m,
+            // Only cut points' targets read it, and the bintree has none.
+            relief_m: 0.0,
             scans: vec![None; n],
             locator_index: std::sync::OnceLock::new(),
         })
@@ -511,19 +511,6 @@ fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
         (z0..=z1).map(row).fold((0.0, false), join)
     };
     Scan { error, valid }
-}
-
-/// Largest minus smallest valid height in a footprint, metres.
-fn footprint_relief(grid: &Grid, ((x0, x1), (z0, z1)): (Span, Span)) -> f64 {
-    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-    for z in z0..=z1 {
-        let row = &grid.heights[z as usize * grid.width..][x0 as usize..=x1 as usize];
-        for &h in row.iter().filter(|h| !h.is_nan()) {
-            lo = lo.min(h);
-            hi = hi.max(h);
-        }
-    }
-    if hi >= lo { f64::from(hi) - f64::from(lo) } else { 0.0 }
 }
 
 /// The bottom-up pass's state: the grid and the errors found so far.
