@@ -30,6 +30,7 @@
 //! | Mount St Helens `quantize` at 5 m, 32-cell leaves: a sample beside a parent edge | verifies, no triangle turned over |
 //! | Sierra 3 × 3 `quantize` at 5 m, 16-cell leaves (`../shared`, ignored): a fan of nearly parallel parent edges | verifies, no triangle turned over |
 //! | flat sea at 0 m with islands and a straight coast; tidal flats at 0–3 m beside hills; a 38° N geographic coast (positions tens of km from the chunk origin); whole-metre terraces on a gentle slope — each in every `--compress` mode | verifies; promise 8: ≤ 0.1 % of each level's triangles with aspect over 100, none over 10³ |
+//! | every fixture DEM at 0.5, 1 and 5 m in every `--compress` mode (`slow_`, `scripts/test --slow`) | verifies; promise 8 at every level; a relief the 16-bit lattice cannot hold is refused |
 //!
 //! Cases found as bugs of the greedy TIN pin it (`--mesher tin`); the rest
 //! run at default settings.
@@ -994,4 +995,46 @@ fn a_geographic_coast_at_38_north_far_from_the_chunk_origin_verifies_in_every_co
     let shapes = verifies_in_every_mode(&dem);
     assert!(shapes.iter().all(|(_, levels)| levels.len() >= 2), "the coast needs more than one level: {shapes:?}");
     assert_well_shaped(&dem, &shapes);
+}
+
+/// Every fixture DEM at 0.5, 1 and 5 m in every `--compress` mode: `verify`
+/// passes and every level keeps promise 8. A DEM whose relief the 16-bit lattice cannot hold at that
+/// error is refused with exit 2, as documented. Minutes in a debug build,
+/// so run by `scripts/test --slow`.
+#[test]
+#[ignore = "slow: scripts/test --slow"]
+fn slow_every_fixture_verifies_and_is_well_shaped_at_three_errors_in_every_mode() {
+    let fixtures = std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")).unwrap();
+    let mut dems: Vec<PathBuf> =
+        fixtures.map(|e| e.unwrap().path()).filter(|p| p.file_name().is_some_and(|n| n != "verify")).collect();
+    dems.sort();
+    assert!(dems.len() >= 10, "{dems:?}");
+    let mut checked = 0;
+    for dem in &dems {
+        for max_error_m in [0.5, 1.0, 5.0] {
+            for compress in EVERY_COMPRESS {
+                let tmp = tempfile::tempdir().unwrap();
+                let out = tmp.path().join("out");
+                let cfg = Config { max_error_m, compress, ..Config::default() };
+                match build(&with_config(dem, &out, cfg)) {
+                    Err(e) if compress != Compress::None && e.exit_code() == 2 => {
+                        assert!(e.to_string().contains("height step"), "{} {compress:?}: {e}", dem.display());
+                        continue;
+                    }
+                    r => r.unwrap_or_else(|e| panic!("{} {max_error_m} m {compress:?}: {e}", dem.display())),
+                };
+                let v = verify(&out, Some(std::slice::from_ref(dem))).unwrap();
+                assert!(
+                    v.failures.is_empty(),
+                    "{} {max_error_m} m {compress:?}:\n{}",
+                    dem.display(),
+                    v.failures.join("\n")
+                );
+                let shapes: Vec<ShapeSummary> = v.levels.values().map(|l| l.shape).collect();
+                assert_well_shaped(dem, &[(compress, shapes)]);
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 120, "{checked} builds checked");
 }
