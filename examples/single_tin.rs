@@ -17,7 +17,8 @@ use std::time::Instant;
 
 use terrachunk::dem::{LoadOptions, load};
 use terrachunk::heightfield::void_fill;
-use terrachunk::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use terrachunk::mesh::decimate::{ChunkSpec, build_chunk};
+use terrachunk::mesh::grid::Grid;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

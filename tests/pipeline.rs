@@ -9,7 +9,7 @@ use std::process::Command;
 
 use serde_json::{Value, json};
 use terrachunk::config::{Compress, Config, Mesher, Thin, VertexCache};
-use terrachunk::mesh::decimate::Grid;
+use terrachunk::mesh::grid::Grid;
 use terrachunk::output::tileset::extras_schemas;
 use terrachunk::pipeline::build;
 use terrachunk::quadtree::ChunkTree;

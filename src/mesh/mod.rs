@@ -4,6 +4,7 @@
 //! [`crate::verify`].
 
 pub mod decimate;
+pub mod grid;
 pub mod quality;
 pub mod rtin;
 pub mod skirt;
@@ -95,7 +96,7 @@ pub fn chain_ties(on: &mut [(f64, u32)], joined: impl Fn(u32, u32) -> bool) {
 
 /// Unit normal of the DEM at grid point (x, z), from central differences of
 /// the nearest sample (one-sided at edges and next to nodata).
-pub fn dem_normal(grid: &decimate::Grid, spacing_m: [f64; 2], x: f64, z: f64) -> [f32; 3] {
+pub fn dem_normal(grid: &grid::Grid, spacing_m: [f64; 2], x: f64, z: f64) -> [f32; 3] {
     let j = (x.round().max(0.0) as usize).min(grid.width - 1);
     let i = (z.round().max(0.0) as usize).min(grid.height - 1);
     let at = |i: usize, j: usize| {

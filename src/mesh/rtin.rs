@@ -36,7 +36,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use rayon::prelude::*;
 
-use super::decimate::Grid;
+use super::grid::Grid;
 use super::{ChunkMesh, MeshError, MeshVertex};
 use crate::quadtree::{ChunkKey, ChunkTree, Span};
 
@@ -449,9 +449,7 @@ fn vertex_height(grid: &Grid, (x, z): P) -> f64 {
     if x as usize >= grid.width || z as usize >= grid.height {
         return f64::NAN;
     }
-    let k = z as usize * grid.width + x as usize;
-    let h = grid.heights[k];
-    if h.is_nan() { grid.filled.map_or(0.0, |f| f64::from(f[k])) } else { f64::from(h) }
+    grid.vertex_height(z as usize, x as usize)
 }
 
 /// What a triangle's samples say against its plane.

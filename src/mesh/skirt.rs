@@ -13,7 +13,7 @@
 //! already below every morph state.
 
 use crate::chunk::Part;
-use crate::mesh::decimate::Grid;
+use crate::mesh::grid::Grid;
 use crate::quadtree::Span;
 
 /// Builds the skirt of a chunk from its finished surface part.

@@ -24,7 +24,7 @@ use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
 use crate::heightfield::{Heightfield, void_fill};
 use crate::mesh::MeshError;
-use crate::mesh::decimate::Grid;
+use crate::mesh::grid::Grid;
 use crate::output::compress::QuantizeError;
 use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json};
 use crate::quadtree::ChunkTree;

@@ -16,7 +16,8 @@ use rayon::prelude::*;
 use super::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS, Span};
 use crate::config::{Config, dense_leaf_cells};
 use crate::heightfield::Heightfield;
-use crate::mesh::decimate::{ChunkSpec, Grid, build_chunk};
+use crate::mesh::decimate::{ChunkSpec, build_chunk};
+use crate::mesh::grid::Grid;
 use crate::mesh::{ChunkMesh, MeshVertex};
 
 /// One estimate window's chain: (vertices on its border, all its

@@ -36,8 +36,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Config, TextureFormat};
-use crate::mesh::decimate::Grid;
 use crate::mesh::dem_normal;
+use crate::mesh::grid::Grid;
 use crate::quadtree::{ChunkKey, ChunkTree, Span};
 use resample::{AxisSampling, Raster, linear_to_srgb, resample};
 pub use source::{ColourSource, TextureSource};

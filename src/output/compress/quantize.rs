@@ -5,7 +5,7 @@
 use crate::chunk::Chunk;
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
-use crate::mesh::decimate::Grid;
+use crate::mesh::grid::Grid;
 use crate::morph::points_near_triangle;
 use crate::quadtree::ChunkTree;
 
