@@ -18,7 +18,6 @@ pub mod geodesy;
 pub mod heightfield;
 pub mod lod;
 pub mod mesh;
-pub mod morph;
 pub mod output;
 pub mod pipeline;
 mod progress;

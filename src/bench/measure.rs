@@ -19,8 +19,8 @@ use serde_json::Value;
 
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
+use crate::mesh::locate::barycentric;
 use crate::mesh::quality::{self, ShapeSummary};
-use crate::morph::barycentric;
 use crate::verify::read_chunk;
 
 use super::BenchError;

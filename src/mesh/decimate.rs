@@ -43,7 +43,7 @@ use robust::Coord;
 use super::grid::{Grid, Window};
 use super::tin::{Position, Tin, V};
 use super::{ChunkMesh, MeshError, MeshVertex, chain_ties};
-use crate::morph::{SurfaceLocator, barycentric};
+use crate::mesh::locate::{SurfaceLocator, barycentric};
 use crate::quadtree::{ChunkKey, Span, midpoint};
 
 /// Most vertices one u16-indexed vertex set may hold (index 65 535 is the
@@ -2155,7 +2155,7 @@ mod tests {
         assert!(mesh.locator_index.get().is_none(), "indexed before it was asked for");
         let (first, second) = (mesh.locator(), mesh.locator());
         assert!(mesh.locator_index.get().is_some(), "not indexed when first asked for");
-        let fresh = crate::morph::SurfaceLocator::from_parts(&mesh.vertices, &mesh.triangles);
+        let fresh = crate::mesh::locate::SurfaceLocator::from_parts(&mesh.vertices, &mesh.triangles);
         let mut found = 0;
         for k in 0..2000 {
             let (x, z) = (f64::from(k % 97) * 0.661, f64::from(k / 97) * 2.31 + 0.1);

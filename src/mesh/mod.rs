@@ -5,6 +5,7 @@
 
 pub mod decimate;
 pub mod grid;
+pub mod locate;
 pub mod quality;
 pub mod rtin;
 pub mod skirt;
@@ -57,15 +58,16 @@ pub struct ChunkMesh {
     pub scans: Vec<Option<decimate::TriangleScan>>,
     /// The bucket grid of [`ChunkMesh::locator`], built on first use and
     /// then shared (the four children's void checks each ask for one).
-    pub locator_index: std::sync::OnceLock<crate::morph::LocatorIndex>,
+    pub locator_index: std::sync::OnceLock<crate::mesh::locate::LocatorIndex>,
 }
 
 impl ChunkMesh {
     /// Finds the triangle under a point, over every triangle (written or
     /// not); its bucket grid is built once per mesh.
-    pub fn locator(&self) -> crate::morph::SurfaceLocator<'_> {
-        let index = self.locator_index.get_or_init(|| crate::morph::LocatorIndex::new(&self.vertices, &self.triangles));
-        crate::morph::SurfaceLocator::with_index(&self.vertices, &self.triangles, index)
+    pub fn locator(&self) -> crate::mesh::locate::SurfaceLocator<'_> {
+        let index =
+            self.locator_index.get_or_init(|| crate::mesh::locate::LocatorIndex::new(&self.vertices, &self.triangles));
+        crate::mesh::locate::SurfaceLocator::with_index(&self.vertices, &self.triangles, index)
     }
 
     /// Whether this mesh already meets `delta_m` with room for f32 output.

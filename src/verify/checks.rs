@@ -8,7 +8,7 @@
 use super::read::ChunkFile;
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
-use crate::morph::points_near_triangle;
+use crate::mesh::locate::points_near_triangle;
 
 /// Whether every position and morph delta of `c` is finite.
 pub(super) fn finite(c: &ChunkFile) -> bool {

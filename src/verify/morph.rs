@@ -6,7 +6,7 @@
 use super::name;
 use super::read::ChunkFile;
 use crate::mesh::MeshVertex;
-use crate::morph::{LocatorIndex, SurfaceLocator, barycentric};
+use crate::mesh::locate::{LocatorIndex, SurfaceLocator, barycentric};
 
 /// A read parent's surface as its children's morph checks read it: in grid
 /// units, with the bucket index that finds the triangle under a point. Made

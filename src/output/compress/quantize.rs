@@ -6,7 +6,7 @@ use crate::chunk::Chunk;
 use crate::heightfield::Heightfield;
 use crate::mesh::MeshVertex;
 use crate::mesh::grid::Grid;
-use crate::morph::points_near_triangle;
+use crate::mesh::locate::points_near_triangle;
 use crate::quadtree::ChunkTree;
 
 /// The largest u16.

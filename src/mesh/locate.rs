@@ -1,11 +1,10 @@
-//! Morph: each vertex's height on the parent chunk's surface.
-//!
-//! A child's triangles refine its parent's (decimate.rs keeps every parent
-//! edge as a constraint), so moving each child vertex to the parent surface
-//! at its (x, z) reproduces the parent exactly, everywhere (DESIGN.md,
-//! promise 3). The glTF morph target stores `parent − own` as a y delta.
-//! [`SurfaceLocator`] finds the parent triangle under a point; `verify` uses
-//! it to re-measure the targets from the files.
+//! Point location in a chunk's surface: [`SurfaceLocator`] finds the
+//! triangle under a point (buckets over the triangles, [`LocatorIndex`]),
+//! [`barycentric`] weighs its corners, [`points_near_triangle`] lists the
+//! grid points a triangle reaches. The greedy mesher reads its morph targets
+//! (each vertex's height on the parent's surface, DESIGN.md promise 3)
+//! through it; `verify` re-measures them and the compressed output's error
+//! with it.
 
 use std::borrow::Cow;
 
