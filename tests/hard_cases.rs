@@ -750,7 +750,7 @@ fn a_rough_patch_between_the_sample_windows_narrows_the_leaves() {
         if (100..400).contains(&i) && (100..400).contains(&j) { white_noise(i, j) / 100.0 } else { 0.0 }
     };
     let dem = write_asc(tmp.path(), "patch.asc", 1500, 1500, rough);
-    let b = survives(&dem, Config { max_error_m: 1.0, max_chunk_vertices: U16_CHUNKS, ..Config::default() });
+    let b = survives(&dem, tin(Config { max_error_m: 1.0, max_chunk_vertices: U16_CHUNKS, ..Config::default() }));
     assert!(b.report.leaf_cells <= 250, "leaves of {} cells", b.report.leaf_cells);
     assert!(b.report.discarded_s > 0.0, "the wide attempt was discarded");
     assert!(leaf(&b).max_error_m <= 1.0);

@@ -59,8 +59,21 @@ impl Tileset {
         let tau_max_px = ex["tau_max_px"].as_f64().filter(|t| t.is_finite() && *t > 0.0);
         let hs = &ex["texture"]["hillshade"];
         let sun_deg = hs["sun_azimuth_deg"].as_f64().zip(hs["sun_elevation_deg"].as_f64()).map(|(a, e)| [a, e]);
+        let mut folders = std::collections::HashSet::new();
         for n in &tree.nodes {
             content_path(dir, &n.uri).with_context(|| path.display().to_string())?;
+            // Each folder on the way is a real one: no link out of the tileset.
+            let mut at = dir.to_path_buf();
+            for part in Path::new(&n.uri).parent().into_iter().flat_map(Path::components) {
+                at.push(part);
+                if folders.insert(at.clone()) {
+                    let meta =
+                        std::fs::symlink_metadata(&at).with_context(|| format!("{}: cannot read", at.display()))?;
+                    if !meta.file_type().is_dir() {
+                        bail!("{}: not a folder (a link?); the viewer reads only inside the tileset", at.display());
+                    }
+                }
+            }
         }
         Ok(Tileset { dir: dir.to_path_buf(), tree, grid, spacing_m, tau_max_px, sun_deg, bounds: (lo, hi) })
     }
@@ -70,10 +83,6 @@ impl Tileset {
         self.dir.join(&self.tree.nodes[node].uri)
     }
 }
-
-/// The largest chunk file the viewer reads (a damaged index must not make
-/// it read a device or a huge file into memory).
-pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
 
 /// A content URI as a path inside `dir`: relative, plain names only (no
 /// `..`, no root, no drive), so a tileset cannot point the viewer outside
@@ -86,17 +95,14 @@ fn content_path(dir: &Path, uri: &str) -> Result<PathBuf> {
     Ok(dir.join(rel))
 }
 
-/// Reads a chunk file: a regular file (not a link out of the tileset), at
-/// most [`MAX_CHUNK_BYTES`].
+/// Reads a chunk file as `verify` reads one ([`terrachunk::verify::read_tile`]):
+/// a regular file (not a link out of the tileset), of bounded size, and a
+/// `.glb` exactly as long as its header says.
 fn read_chunk_file(path: &Path) -> Result<Vec<u8>> {
-    let meta = std::fs::symlink_metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    if !meta.file_type().is_file() {
-        bail!("{}: not a regular file", path.display());
-    }
-    if meta.len() > MAX_CHUNK_BYTES {
-        bail!("{}: {} bytes, more than a chunk may hold ({MAX_CHUNK_BYTES})", path.display(), meta.len());
-    }
-    std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name().and_then(|n| n.to_str())) else {
+        bail!("{}: not a chunk file's path", path.display());
+    };
+    Ok(terrachunk::verify::read_tile(dir, name)?)
 }
 
 /// One vertex as the GPU sees it (60 bytes).
@@ -504,5 +510,41 @@ mod tests {
         let Err(e) = load_chunk(&path) else { panic!("a chunk indexing past its vertices loaded") };
         let e = format!("{e:#}");
         assert!(e.contains("0.glb") && e.contains("index 60000 past"), "{e}");
+    }
+
+    /// The viewer reads chunks as `verify` does: a chunk longer than its GLB
+    /// header says, or one that is a link, is an error naming it; a tileset
+    /// whose level folder is a link out of it does not open.
+    #[cfg(unix)]
+    #[test]
+    fn padded_linked_and_linked_folder_chunks_are_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
+        let dir = tmp.path().join("out");
+        build(&BuildOptions {
+            inputs: vec![dem],
+            out: dir.clone(),
+            force: false,
+            config: Config { max_error_m: 0.5, ..Config::default() },
+            texture: TextureSource::None,
+            progress: false,
+        })
+        .unwrap();
+        let ts = Tileset::open(&dir).unwrap();
+        let path = ts.chunk_path(0);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes.extend_from_slice(&[0; 64]);
+        std::fs::write(&path, &bytes).unwrap();
+        let e = format!("{:#}", load_chunk(&path).err().expect("a padded chunk loaded"));
+        assert!(e.contains("0.glb") && e.contains("header"), "{e}");
+        std::fs::remove_file(&path).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", &path).unwrap();
+        let e = format!("{:#}", load_chunk(&path).err().expect("a linked chunk loaded"));
+        assert!(e.contains("0.glb") && e.contains("link"), "{e}");
+        let level = dir.join("tiles/1");
+        std::fs::rename(&level, tmp.path().join("elsewhere")).unwrap();
+        std::os::unix::fs::symlink(tmp.path().join("elsewhere"), &level).unwrap();
+        let e = format!("{:#}", Tileset::open(&dir).err().expect("a tileset with a linked folder opened"));
+        assert!(e.contains("tiles/1") && e.contains("link"), "{e}");
     }
 }
