@@ -244,66 +244,85 @@ impl Rtin {
     /// The deepest level of `tree` (one this field serves) with a chunk that
     /// may have more than `max_vertices` vertices, from the field alone: a
     /// chunk's vertices are its square's corners and the samples in it
-    /// whose error exceeds its δ. `None` where every chunk fits.
+    /// whose error exceeds its δ. `None` where every chunk fits, or where
+    /// the count would need more than 4 M squares × rungs of tables (tiny
+    /// leaves on a huge grid): the build then finds out.
     pub fn densest_over(&self, tree: &ChunkTree, max_vertices: usize) -> Option<u32> {
         let depth = tree.depth();
-        // Rungs 0..=depth matter (δ of level L is the ladder times 2^(depth − L)).
-        let bins = depth as usize + 2;
-        let mut by_side: Vec<(u32, Vec<usize>)> = Vec::new();
-        for level in (0..=depth).rev() {
-            let s = square_side(tree, level);
-            if by_side.last().is_none_or(|(side, _)| *side != s) {
-                by_side.push((s, self.densest_squares(s, bins)));
-            }
-            // Samples above rung `depth − level` exceed this level's δ.
-            let densest = by_side.last().expect("pushed above").1[(depth - level) as usize];
-            if densest + 4 > max_vertices {
-                return Some(level);
-            }
+        let sides: Vec<u32> = (0..=depth).map(|l| square_side(tree, l)).collect();
+        let mut distinct = sides.clone();
+        distinct.dedup();
+        let squares = |s: u32| (((self.width - 1) / s as usize) + 1) * (((self.height - 1) / s as usize) + 1);
+        if distinct.iter().map(|&s| squares(s) * RUNGS).sum::<usize>() > 1 << 22 {
+            return None;
         }
-        None
+        let counts = self.densest_squares(&distinct);
+        (0..=depth).rev().find(|&level| {
+            let at = distinct.iter().position(|&s| s == sides[level as usize]).expect("listed");
+            // Samples above rung `depth − level` exceed this level's δ.
+            let k = ((depth - level) as usize).min(RUNGS - 1);
+            counts[at][k] + 4 > max_vertices
+        })
     }
 
-    /// Per rung k (0..bins − 1), the most samples any closed square of side
-    /// `s` (aligned to `s`) holds above rung k; the last bin takes every
-    /// higher rung.
-    fn densest_squares(&self, s: u32, bins: usize) -> Vec<usize> {
+    /// Per side in `sides` and per rung k, the most samples any closed
+    /// square of that side (aligned to it) holds above rung k: one pass over
+    /// the field, rows in parallel.
+    fn densest_squares(&self, sides: &[u32]) -> Vec<Vec<usize>> {
         let (wc, hc) = ((self.width - 1) as u32, (self.height - 1) as u32);
-        let (nx, nz) = (wc.div_ceil(s).max(1) as usize, hc.div_ceil(s).max(1));
-        (0..nz)
-            .into_par_iter()
-            .map(|bz| {
-                let mut h = vec![0u32; nx * bins];
-                let z0 = bz * s;
-                for z in z0..=(z0 + s).min(hc) {
+        let shape: Vec<(u32, usize)> = sides.iter().map(|&s| (s, wc.div_ceil(s).max(1) as usize)).collect();
+        let tables = || -> Vec<Vec<u32>> {
+            shape.iter().map(|&(s, nx)| vec![0u32; nx * hc.div_ceil(s).max(1) as usize * RUNGS]).collect()
+        };
+        let rows: Vec<u32> = (0..=hc).collect();
+        let sums = rows
+            .par_chunks(64)
+            .fold(tables, |mut t, chunk| {
+                for &z in chunk {
                     let row = &self.errors[z as usize * self.width..][..self.width];
                     for (x, &e) in row.iter().enumerate() {
                         if f64::from(e) <= self.ladder {
                             continue;
                         }
-                        let k = (rung(e, self.ladder) as usize).min(bins - 1);
+                        let k = (rung(e, self.ladder) as usize).min(RUNGS - 1);
                         let x = x as u32;
-                        let i = (x / s) as usize;
-                        if i < nx {
-                            h[i * bins + k] += 1;
-                        }
-                        if x.is_multiple_of(s) && x > 0 {
-                            h[(i - 1) * bins + k] += 1;
+                        for (table, &(s, nx)) in t.iter_mut().zip(&shape) {
+                            // Every closed square the sample lies in.
+                            let (i, j) = ((x / s) as usize, (z / s) as usize);
+                            let nz = table.len() / (nx * RUNGS);
+                            let is = [Some(i), (x.is_multiple_of(s) && i > 0).then(|| i - 1)];
+                            let js = [Some(j), (z.is_multiple_of(s) && j > 0).then(|| j - 1)];
+                            for jj in js.into_iter().flatten().filter(|&jj| jj < nz) {
+                                for ii in is.into_iter().flatten().filter(|&ii| ii < nx) {
+                                    table[(jj * nx + ii) * RUNGS + k] += 1;
+                                }
+                            }
                         }
                     }
                 }
-                // Per square, the count above each rung; the band's most.
-                let mut most = vec![0usize; bins];
-                for sq in h.chunks(bins) {
+                t
+            })
+            .reduce(tables, |mut a, b| {
+                for (ta, tb) in a.iter_mut().zip(&b) {
+                    for (x, y) in ta.iter_mut().zip(tb) {
+                        *x += y;
+                    }
+                }
+                a
+            });
+        sums.iter()
+            .map(|table| {
+                let mut most = vec![0usize; RUNGS];
+                for sq in table.chunks(RUNGS) {
                     let mut above = 0usize;
-                    for k in (0..bins).rev() {
+                    for k in (0..RUNGS).rev() {
                         most[k] = most[k].max(above);
                         above += sq[k] as usize;
                     }
                 }
                 most
             })
-            .reduce(|| vec![0; bins], |a, b| a.iter().zip(&b).map(|(x, y)| *x.max(y)).collect())
+            .collect()
     }
 
     /// The error stored at a vertex (0 for a leaf vertex, ∞ where a
@@ -615,16 +634,29 @@ impl Field<'_> {
     }
 }
 
+/// Rungs [`Rtin::densest_over`] tells apart; higher ones count as the last
+/// (a tree of more levels is not planned).
+const RUNGS: usize = 48;
+
 /// How many of the δs `ladder`·2^k (k = 0..64) `e` exceeds: two errors on
 /// one rung split the same triangles at every level.
 #[inline]
 fn rung(e: f32, ladder: f64) -> u32 {
     let e = f64::from(e);
-    let mut k = 0;
-    let mut delta = ladder;
-    while k < 64 && e > delta {
+    if e <= ladder {
+        return 0;
+    }
+    if e.is_infinite() {
+        return 64;
+    }
+    // The smallest k with e ≤ ladder·2^k, from the logarithm and then exactly.
+    let step = |k: u32| ladder * 2f64.powi(k as i32);
+    let mut k = ((e / ladder).log2().ceil().max(1.0) as u32).min(64);
+    while k > 1 && e <= step(k - 1) {
+        k -= 1;
+    }
+    while k < 64 && e > step(k) {
         k += 1;
-        delta *= 2.0;
     }
     k
 }
@@ -902,9 +934,8 @@ mod tests {
             let grid = Grid::new(w, h, &heights, None);
             let tree = plan(w, h, err, None, leaf, 0);
             let rtin = Rtin::new(&grid, &tree, None);
-            let bins = tree.depth() as usize + 2;
             for level in 0..=tree.depth() {
-                let counted = rtin.densest_squares(square_side(&tree, level), bins)[(tree.depth() - level) as usize];
+                let counted = rtin.densest_squares(&[square_side(&tree, level)])[0][(tree.depth() - level) as usize];
                 let l = level as usize;
                 let most = (0..tree.zs[l].len() as u32)
                     .flat_map(|y| (0..tree.xs[l].len() as u32).map(move |x| ChunkKey { level, x, y }))
@@ -913,6 +944,21 @@ mod tests {
                     .unwrap();
                 prop_assert!(most <= counted + 4 && most >= counted, "level {}: {} vertices, counted {}", level, most, counted);
                 prop_assert_eq!(rtin.densest_over(&tree, counted + 4).is_none_or(|l| l != level), true);
+            }
+        }
+
+        /// A rung is how many of the δs a value exceeds, counted one by one.
+        #[test]
+        fn rung_counts_the_deltas_exceeded(bits in any::<u32>(), ladder in prop_oneof![Just(1.0), Just(0.001), Just(0.37), 1e-3..1e3f64]) {
+            let e = f32::from_bits(bits).abs();
+            prop_assume!(!e.is_nan());
+            let counted = (0..64).filter(|&k| f64::from(e) > ladder * 2f64.powi(k)).count() as u32;
+            prop_assert_eq!(rung(e, ladder), counted, "{} over {}", e, ladder);
+            for k in 0..40 {
+                let at = ladder * 2f64.powi(k);
+                let f = at as f32;
+                let counted = (0..64).filter(|&j| f64::from(f) > ladder * 2f64.powi(j)).count() as u32;
+                prop_assert_eq!(rung(f, ladder), counted, "{} over {}", f, ladder);
             }
         }
 
