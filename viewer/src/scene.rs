@@ -479,13 +479,10 @@ mod tests {
         }
     }
 
-    /// A damaged chunk whose triangles index past its vertices is an error
-    /// naming the file: its indices once went to the GPU as they were.
-    #[test]
-    fn a_chunk_indexing_past_its_vertices_is_refused() {
-        let tmp = tempfile::tempdir().unwrap();
+    /// The Kattegat fixture built untextured at 0.5 m into `tmp/out`.
+    fn kattegat_tileset(tmp: &Path) -> PathBuf {
         let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
-        let dir = tmp.path().join("out");
+        let dir = tmp.join("out");
         build(&BuildOptions {
             inputs: vec![dem],
             out: dir.clone(),
@@ -495,6 +492,15 @@ mod tests {
             progress: false,
         })
         .unwrap();
+        dir
+    }
+
+    /// A damaged chunk whose triangles index past its vertices is an error
+    /// naming the file: its indices once went to the GPU as they were.
+    #[test]
+    fn a_chunk_indexing_past_its_vertices_is_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = kattegat_tileset(tmp.path());
         let path = dir.join("tiles/0/0/0.glb");
         assert!(load_chunk(&path).is_ok());
         // The surface's first index (u16, at the start of its bufferView) set past the vertices.
@@ -519,17 +525,7 @@ mod tests {
     #[test]
     fn padded_linked_and_linked_folder_chunks_are_refused() {
         let tmp = tempfile::tempdir().unwrap();
-        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
-        let dir = tmp.path().join("out");
-        build(&BuildOptions {
-            inputs: vec![dem],
-            out: dir.clone(),
-            force: false,
-            config: Config { max_error_m: 0.5, ..Config::default() },
-            texture: TextureSource::None,
-            progress: false,
-        })
-        .unwrap();
+        let dir = kattegat_tileset(tmp.path());
         let ts = Tileset::open(&dir).unwrap();
         let path = ts.chunk_path(0);
         let mut bytes = std::fs::read(&path).unwrap();
