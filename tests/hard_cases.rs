@@ -654,7 +654,7 @@ fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
     }
 }
 
-/// Was a bug in the mesher (`mesh/decimate.rs`, the target `refine_line`
+/// Was a bug in the mesher (`mesh/decimate/cuts.rs`, the target `refine_line`
 /// used): borders are meant to be decided from the line's own samples so
 /// that neighbours agree, but the 1-D refinement compared each sample
 /// against `0.98·δ − 4ε·relief`, and the relief was the chunk's own.

@@ -213,7 +213,7 @@ proptest! {
     }
 }
 
-/// Was a bug in the mesher (`mesh/decimate.rs`, `finish`): a triangle that covers
+/// Was a bug in the mesher (`mesh/decimate/scan.rs`, `finish`): a triangle that covers
 /// no sample is kept when any corner of the grid cell under its centroid
 /// holds data, but a triangle that covers only nodata samples is dropped. A
 /// child can so keep a sample-free sliver inside a parent triangle that was
