@@ -5,10 +5,12 @@
 #
 #   1. The merged tileset is byte-identical to the single-process build and
 #      passes `terrachunk verify`.
-#   2. Again, with one worker killed (SIGKILL) while it runs a job: the
-#      scheduler reruns the job elsewhere, the result is still identical,
-#      and neither OUT nor the killed job's folder appears before they are
-#      whole.
+#   2. Again with the greedy TIN, whose debug-build jobs last long enough to
+#      be caught, and one worker killed (SIGKILL) while it runs a job: the
+#      job is frozen first (SIGSTOP) and the kill made only once it is seen
+#      unfinished, so the check does not depend on timing. The scheduler
+#      reruns the job elsewhere, the result is still identical, and neither
+#      OUT nor the killed job's folder appears before they are whole.
 #
 #   tests/cluster/run.sh [--bin TERRACHUNK] [--dem DEM] [--shards N] [-- BUILD OPTIONS…]
 #
@@ -23,9 +25,7 @@ cd "$repo"
 bin="$repo/target/debug/terrachunk"
 dem="$repo/fixtures/mount_st_helens_30m.tif"
 shards=6
-# The greedy TIN's jobs run long enough in a debug build for step 2 to catch
-# one mid-way; the bintree's sharded bytes are checked by tests/shard.rs.
-build_opts=(--max-error 1 --leaf-cells 32 --mesher tin)
+build_opts=(--max-error 1 --leaf-cells 32)
 while [ $# -gt 0 ]; do
   case "$1" in
     --bin) bin="$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"; shift 2 ;;
@@ -82,12 +82,14 @@ EOF
 stamp "scheduler and 2 workers up at $addr"
 
 "$bin" build "$dem" -o "$work/whole" --threads 2 "${build_opts[@]}" >/dev/null
-stamp "single-process build"
+"$bin" build "$dem" -o "$work/whole-tin" --threads 2 "${build_opts[@]}" --mesher tin >/dev/null
+stamp "single-process builds"
 
+# same OUT WHOLE: byte-identical to the single-process build, and verified.
 same() {
-  if ! diff -r "$work/whole" "$1" >/dev/null; then
+  if ! diff -r "$2" "$1" >/dev/null; then
     echo "cluster: FAIL: $1 differs from the single-process build" >&2
-    diff -rq "$work/whole" "$1" | head >&2
+    diff -rq "$2" "$1" | head >&2
     exit 1
   fi
   "$bin" verify "$1" --dem "$dem" >"$work/verify.log" || { cat "$work/verify.log" >&2; exit 1; }
@@ -96,11 +98,11 @@ same() {
 # 1. Straight through.
 "$bin" plan --shards "$shards" "$dem" -o "$work/a" "${build_opts[@]}" >/dev/null
 "$py" tools/dask_build.py --scheduler "$addr" --terrachunk "$bin" "$work/a.shards/manifest.json" >"$work/a.log"
-same "$work/a"
+same "$work/a" "$work/whole"
 stamp "sharded build on 2 workers: byte-identical, verify OK"
 
 # 2. A worker killed in the middle of a job.
-"$bin" plan --shards "$shards" "$dem" -o "$work/b" "${build_opts[@]}" >/dev/null
+"$bin" plan --shards "$shards" "$dem" -o "$work/b" "${build_opts[@]}" --mesher tin >/dev/null
 "$py" tools/dask_build.py --scheduler "$addr" --terrachunk "$bin" "$work/b.shards/manifest.json" >"$work/b.log" 2>&1 &
 driver=$!
 pids+=($driver)
@@ -113,21 +115,28 @@ for _ in $(seq 600); do
     if [ -n "$job" ] && compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null; then
       victim="$(ps -o ppid= -p "$p" | tr -d ' ' || true)"
       # Only ever one of the workers this script started.
-      case "$workers" in *" $victim "*) break 2 ;; esac
+      case "$workers" in *" $victim "*) ;; *) victim=""; continue ;; esac
+      # Frozen, the job can no longer publish: kill only one still unfinished.
+      kill -STOP "$p" 2>/dev/null || { victim=""; continue; }
+      if compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null && [ ! -e "$work/b.shards/job-$job" ]; then
+        break 2
+      fi
+      kill -CONT "$p" 2>/dev/null || true
       victim=""
     fi
   done
   sleep 0.1
 done
 [ -n "$victim" ] || { echo "cluster: FAIL: no job seen running" >&2; exit 1; }
-kill -KILL "$victim"
+# The worker's death takes its job with it (PR_SET_PDEATHSIG in the driver).
+kill -KILL "$victim" "$p"
 stamp "killed worker $victim while it ran job $job"
 if [ -e "$work/b" ] || [ -e "$work/b.shards/job-$job" ]; then
   echo "cluster: FAIL: a partial result is visible after the kill" >&2
   exit 1
 fi
 wait "$driver" || { cat "$work/b.log" >&2; exit 1; }
-same "$work/b"
+same "$work/b" "$work/whole-tin"
 grep -q "job-$job: " "$work/b.log"
 stamp "job $job rerun by the surviving worker: byte-identical, verify OK"
 echo "cluster: 2 passed, 0 failed"
