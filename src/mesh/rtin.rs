@@ -32,6 +32,7 @@
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use rayon::prelude::*;
@@ -198,6 +199,9 @@ pub struct Rtin {
     ladder: f64,
     /// The height step the errors include.
     step: Option<f64>,
+    /// [`Rtin::densest_squares`] per square side, kept: the refine count
+    /// asks again for the same sides with one more level each time.
+    densest: Mutex<HashMap<u32, Vec<usize>>>,
 }
 
 impl Rtin {
@@ -229,7 +233,7 @@ impl Rtin {
             c *= 2;
         }
         let errors = field.errors.into_iter().map(|e| f32::from_bits(e.into_inner())).collect();
-        Rtin { width: grid.width, height: grid.height, errors, top, ladder, step: height_step }
+        Rtin { width: grid.width, height: grid.height, errors, top, ladder, step: height_step, densest: Mutex::default() }
     }
 
     /// Whether this field meshes `tree`'s chunks with heights rounded to
@@ -256,12 +260,15 @@ impl Rtin {
         if distinct.iter().map(|&s| squares(s) * RUNGS).sum::<usize>() > 1 << 22 {
             return None;
         }
-        let counts = self.densest_squares(&distinct);
+        let mut known = self.densest.lock().unwrap_or_else(|e| e.into_inner());
+        let missing: Vec<u32> = distinct.iter().copied().filter(|s| !known.contains_key(s)).collect();
+        if !missing.is_empty() {
+            known.extend(missing.iter().copied().zip(self.densest_squares(&missing)));
+        }
         (0..=depth).rev().find(|&level| {
-            let at = distinct.iter().position(|&s| s == sides[level as usize]).expect("listed");
             // Samples above rung `depth − level` exceed this level's δ.
             let k = ((depth - level) as usize).min(RUNGS - 1);
-            counts[at][k] + 4 > max_vertices
+            known[&sides[level as usize]][k] + 4 > max_vertices
         })
     }
 
@@ -649,9 +656,13 @@ fn rung(e: f32, ladder: f64) -> u32 {
     if e.is_infinite() {
         return 64;
     }
-    // The smallest k with e ≤ ladder·2^k, from the logarithm and then exactly.
-    let step = |k: u32| ladder * 2f64.powi(k as i32);
-    let mut k = ((e / ladder).log2().ceil().max(1.0) as u32).min(64);
+    // The smallest k with e ≤ ladder·2^k: ⌈log2(e / ladder)⌉ from the
+    // quotient's exponent bits, then made exact against the products (the
+    // quotient rounds; multiplying by a power of two does not).
+    let r = (e / ladder).to_bits();
+    let exponent = ((r >> 52) & 0x7ff) as i64 - 1023;
+    let mut k = (exponent + i64::from(r & ((1 << 52) - 1) != 0)).clamp(1, 64) as u32;
+    let step = |k: u32| ladder * f64::from_bits((1023 + u64::from(k)) << 52);
     while k > 1 && e <= step(k - 1) {
         k -= 1;
     }
