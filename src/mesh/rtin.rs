@@ -374,7 +374,7 @@ impl Rtin {
             square: (x0, z0),
             delta_m,
             parent,
-            index: HashMap::default(),
+            index: VertexIndex::over(side),
             vertices: Vec::new(),
             triangles: Vec::new(),
         };
@@ -693,7 +693,7 @@ struct Mesher<'a> {
     delta_m: f64,
     /// The parent level's square side and δ (None at the top).
     parent: Option<(u32, f64)>,
-    index: HashMap<P, u32, BuildHasherDefault<PointHasher>>,
+    index: VertexIndex,
     vertices: Vec<MeshVertex>,
     triangles: Vec<[u32; 3]>,
 }
@@ -748,14 +748,51 @@ impl Mesher<'_> {
     }
 
     fn vertex(&mut self, p: P, ph: f64) -> u32 {
-        if let Some(&v) = self.index.get(&p) {
-            return v;
+        let local = (p.0 - self.square.0, p.1 - self.square.1);
+        let next = self.vertices.len() as u32;
+        let v = self.index.entry(local, next);
+        if v == next {
+            let h = vertex_height(self.grid, p);
+            self.vertices.push(MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph });
         }
-        let v = self.vertices.len() as u32;
-        let h = vertex_height(self.grid, p);
-        self.vertices.push(MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph });
-        self.index.insert(p, v);
         v
+    }
+}
+
+/// A chunk's vertex numbers by position within its square: a table for the
+/// common small squares, a hash map for the few large ones.
+enum VertexIndex {
+    Table { row: usize, slots: Vec<u32> },
+    Map(HashMap<P, u32, BuildHasherDefault<PointHasher>>),
+}
+
+impl VertexIndex {
+    /// Squares up to this side get a table ((side + 1)² slots).
+    const TABLE_SIDE: u32 = 256;
+
+    fn over(side: u32) -> Self {
+        if side <= Self::TABLE_SIDE {
+            let row = side as usize + 1;
+            VertexIndex::Table { row, slots: vec![u32::MAX; row * row] }
+        } else {
+            VertexIndex::Map(HashMap::default())
+        }
+    }
+
+    /// The number of the vertex at `local` (offset from the square's
+    /// corner), given `next` if it has none yet.
+    #[inline]
+    fn entry(&mut self, local: P, next: u32) -> u32 {
+        match self {
+            VertexIndex::Table { row, slots } => {
+                let slot = &mut slots[local.1 as usize * *row + local.0 as usize];
+                if *slot == u32::MAX {
+                    *slot = next;
+                }
+                *slot
+            }
+            VertexIndex::Map(map) => *map.entry(local).or_insert(next),
+        }
     }
 }
 
