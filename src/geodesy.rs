@@ -115,7 +115,7 @@ impl Placement {
     /// `spacing_m` between them on the ground as the tileset has it) sits on
     /// the Earth, or why it cannot be placed.
     pub fn of_grid(georef: &Georef, width: usize, height: usize, spacing_m: [f64; 2]) -> Result<Placement, NotPlaced> {
-        let source = SourceCrs::of(&georef.crs)?;
+        let source = SourceCrs::of(&georef.crs, georef.definition.as_deref())?;
         let [dx, dy] = georef.step;
         // Grid centre in source units, and in tileset metres (x east, y north).
         let (ci, cj) = ((height - 1) as f64 / 2.0, (width - 1) as f64 / 2.0);
@@ -233,8 +233,18 @@ pub struct SourceCrs {
 }
 
 impl SourceCrs {
-    /// The CRS a grid's georeference names.
-    pub fn of(crs: &Crs) -> Result<SourceCrs, NotPlaced> {
+    /// The CRS a grid's georeference names: its EPSG code, or else the
+    /// PROJ.4 `definition` the file gave.
+    pub fn of(crs: &Crs, definition: Option<&str>) -> Result<SourceCrs, NotPlaced> {
+        match (crs, definition) {
+            (Crs::Geographic { epsg: None } | Crs::Projected { epsg: None }, Some(def)) => {
+                SourceCrs::from_definition("the file's PROJ.4 definition", def)
+            }
+            (crs, _) => SourceCrs::of_crs(crs),
+        }
+    }
+
+    fn of_crs(crs: &Crs) -> Result<SourceCrs, NotPlaced> {
         match *crs {
             Crs::Unknown | Crs::Projected { epsg: None } => Err(NotPlaced::NoCrs),
             // Unnamed geographic grids (SRTM .hgt, degree .asc) are WGS 84.
@@ -406,7 +416,7 @@ mod tests {
         let (w, h) = (401, 301);
         let origin = [centre[0] - 200.0 * 30.0, centre[1] + 150.0 * 30.0];
         let crs = Crs::Projected { epsg: Some(utm_epsg(zone, north)) };
-        (Georef { crs, origin, step: [30.0, -30.0], local_tangent: None }, w, h)
+        (Georef { crs, origin, step: [30.0, -30.0], local_tangent: None, definition: None }, w, h)
     }
 
     #[test]
@@ -464,8 +474,8 @@ mod tests {
             let (w, h) = (471, 471);
             let origin = [centre[0] - 235.0 * step[0], centre[1] - 235.0 * step[1]];
             let crs = Crs::Projected { epsg: Some(code) };
-            let g = Georef { crs: crs.clone(), origin, step, local_tangent: None };
-            let source = SourceCrs::of(&crs).unwrap();
+            let g = Georef { crs: crs.clone(), origin, step, local_tangent: None, definition: None };
+            let source = SourceCrs::of(&crs, None).unwrap();
             // The grid's own ground spacing, as a loader would measure it.
             let (lat0, _) = source.to_wgs84(centre).unwrap();
             let k = if code == 3857 { lat0.to_radians().cos() } else { 1.0 };
@@ -499,6 +509,7 @@ mod tests {
                 origin: [-97.0, 33.0],
                 step: [step, -step],
                 local_tangent: None,
+                definition: None,
             };
             let p = Placement::of_grid(&g, 1201, 1201, [step * mx, step * mz]).unwrap();
             assert!((p.lon_deg + 96.5).abs() < 1e-12 && (p.lat_deg - 32.5).abs() < 1e-12, "{epsg:?}");
@@ -537,6 +548,7 @@ mod tests {
             origin: [-122.2, 46.2],
             step: [1e-3, -1e-3],
             local_tangent: None,
+            definition: None,
         };
         assert!(Placement::of_grid(&g, 3, 3, [77.0, 111.0]).is_ok());
     }

@@ -294,8 +294,15 @@ fn enu_axes(ts: &Value) -> [[f64; 3]; 3] {
 fn miss(dir: &Path, p: &Published, at: (f64, f64)) -> (f64, f64, f64) {
     let dem = dir.join(format!("epsg{}_{}_{}.tif", p.epsg, at.0, at.1));
     write_projected_tif(&dem, p.epsg, p.step, at, p.xy);
-    let out = dir.join(format!("out_{}_{}_{}", p.epsg, at.0, at.1));
-    let opts = crate::common::options(&dem, &out, 0.5, 1);
+    landing(&dem, p, at)
+}
+
+/// Builds `dem` (41 × 41 samples) beside itself and measures where sample
+/// `at` lands against the published point `p`, as [`miss`] says.
+fn landing(dem: &Path, p: &Published, at: (f64, f64)) -> (f64, f64, f64) {
+    let name = dem.file_stem().unwrap().to_string_lossy();
+    let out = dem.with_file_name(format!("out_{name}"));
+    let opts = crate::common::options(dem, &out, 0.5, 1);
     let report = terrachunk::pipeline::build(&opts).unwrap_or_else(|e| panic!("EPSG:{}: {e}", p.epsg));
     assert_eq!(report.not_placed, None, "EPSG:{}", p.epsg);
     verified(&out);
@@ -335,6 +342,41 @@ fn grids_in_any_crs_land_on_published_points() {
         assert!(ground < 0.02, "EPSG:{} ({}): corner {ground} m off along the ground", p.epsg, p.source);
         let float = d * d / (2.0 * r);
         assert!((up - float).abs() < 0.005, "EPSG:{} ({}): corner {up} m up, not {float}", p.epsg, p.source);
+    }
+}
+
+/// An ASCII grid takes its CRS from the `.prj` beside it: the EPSG code
+/// in its WKT (here a compound CRS, British National Grid + Newlyn
+/// heights), or a PROJ.4 definition (here Lambert-93's); its sample
+/// centred on the published point lands within 1 cm of it.
+#[test]
+fn an_ascii_grid_is_placed_by_the_crs_its_prj_names() {
+    let tmp = tempfile::tempdir().unwrap();
+    let points = published_points();
+    let bng = points.iter().find(|p| p.epsg == 27700).unwrap();
+    let l93 = points.iter().find(|p| p.epsg == 2154).unwrap();
+    let wkt = r#"COMPD_CS["OSGB 1936 / British National Grid + ODN height",
+        PROJCS["OSGB 1936 / British National Grid",GEOGCS["OSGB 1936",DATUM["OSGB_1936",
+        SPHEROID["Airy 1830",6377563.396,299.3249646,AUTHORITY["EPSG","7001"]],AUTHORITY["EPSG","6277"]],
+        PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AUTHORITY["EPSG","4277"]],
+        PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",49],UNIT["metre",1],
+        AUTHORITY["EPSG","27700"]],VERT_CS["ODN height",VERT_DATUM["Ordnance Datum Newlyn",2005],
+        UNIT["metre",1],AUTHORITY["EPSG","5701"]],AUTHORITY["EPSG","7405"]]"#;
+    let proj4 = "+proj=lcc +lat_1=49 +lat_2=44 +lat_0=46.5 +lon_0=3 +x_0=700000 +y_0=6600000 +ellps=GRS80 \
+                 +towgs84=0,0,0,0,0,0,0 +units=m +no_defs";
+    for (name, prj, p) in [("bng", wkt, bng), ("l93", proj4, l93)] {
+        let cell = p.step;
+        let mut text = format!(
+            "ncols 41\nnrows 41\nxllcorner {}\nyllcorner {}\ncellsize {cell}\n",
+            p.xy[0] - 20.5 * cell,
+            p.xy[1] - 20.5 * cell
+        );
+        text += &"0 ".repeat(41 * 41);
+        let dem = tmp.path().join(format!("{name}.asc"));
+        std::fs::write(&dem, text).unwrap();
+        std::fs::write(dem.with_extension("prj"), prj).unwrap();
+        let (ground, up, _) = landing(&dem, p, (20.0, 20.0));
+        assert!(ground.hypot(up) < 0.01, "{name}.asc: centre {ground} m, {up} m up off");
     }
 }
 

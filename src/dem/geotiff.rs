@@ -138,7 +138,13 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         height,
         heights,
         spacing_m: [1.0, 1.0],
-        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
+        georef: Georef {
+            crs: Crs::Unknown,
+            origin: [0.0, 0.0],
+            step: [1.0, -1.0],
+            local_tangent: None,
+            definition: None,
+        },
         source: file_name(path),
     };
     let mut dec = dec.with_limits(tag_limits(file_len));
@@ -561,7 +567,7 @@ fn georeference(path: &Path, dec: &mut TiffDecoder, hf: &mut Heightfield) -> Res
         }
         Crs::Projected { .. } => {
             let mut spacing = [step[0].abs() * unit_m, step[1].abs() * unit_m];
-            if let Ok(source) = SourceCrs::of(&crs) {
+            if let Ok(source) = SourceCrs::of(&crs, None) {
                 let mid = [
                     origin[0] + step[0] * (hf.width - 1) as f64 / 2.0,
                     origin[1] + step[1] * (hf.height - 1) as f64 / 2.0,
