@@ -20,6 +20,11 @@ pub struct Georef {
     pub step: [f64; 2],
     /// For geographic grids: where and how degrees became metres.
     pub local_tangent: Option<LocalTangent>,
+    /// The CRS as a PROJ.4 definition, where the file gives one instead
+    /// of an EPSG code (a `.prj` of PROJ.4 text beside an ASCII grid);
+    /// `crs` still says whether it is geographic or projected.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub definition: Option<String>,
 }
 
 /// Coordinate system of a source grid.
@@ -111,7 +116,13 @@ impl Heightfield {
             height,
             heights,
             spacing_m: [1.0, 1.0],
-            georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
+            georef: Georef {
+                crs: Crs::Unknown,
+                origin: [0.0, 0.0],
+                step: [1.0, -1.0],
+                local_tangent: None,
+                definition: None,
+            },
             source,
         }
     }

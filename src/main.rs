@@ -290,6 +290,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     if let Some(warning) = r.over_delta_warning() {
                         eprintln!("{warning}");
                     }
+                    if let Some(warning) = r.not_placed_warning() {
+                        eprintln!("{warning}");
+                    }
                     if let Some(p) = report
                         && let Err(e) = r.write(&p)
                     {

@@ -1,11 +1,15 @@
 //! Where a georeferenced tileset sits on the globe: the root `transform`
 //! (src/geodesy.rs) against positions computed outside terrachunk, by PROJ
 //! 9.5.1 (pyproj 3.7.2: EPSG:32605 or EPSG:4326 → EPSG:4979 → EPSG:4978
-//! ECEF), and the tileset-level geometric error 3D Tiles clients cull by.
+//! ECEF) or from published worked examples of each projection (with the
+//! datum's published Helmert shift done here), and the tileset-level
+//! geometric error 3D Tiles clients cull by.
+
+use std::path::Path;
 
 use serde_json::Value;
 
-use crate::common::{build_ok, fixture, tileset};
+use crate::common::{build_ok, cli, fixture, tileset, verified};
 
 /// The root transform (column-major) applied to a point in tileset metres.
 fn apply(ts: &Value, p: [f64; 3]) -> [f64; 3] {
@@ -92,4 +96,308 @@ fn the_tileset_is_not_culled_while_it_is_bigger_than_a_pixel() {
         let ge = ts["geometricError"].as_f64().unwrap();
         assert!(ge >= diagonal * (1.0 - 1e-9), "{name}: geometricError {ge} < box diagonal {diagonal}");
     }
+}
+
+// ------------------------------------------- any CRS, against published points
+
+/// An ellipsoid: semi-major axis and flattening.
+#[derive(Clone, Copy)]
+struct Ellipsoid {
+    a: f64,
+    f: f64,
+}
+
+const WGS84: Ellipsoid = Ellipsoid { a: 6_378_137.0, f: 1.0 / 298.257_223_563 };
+/// GRS 80 (ETRS89, RGF93, NAD83).
+const GRS80: Ellipsoid = Ellipsoid { a: 6_378_137.0, f: 1.0 / 298.257_222_101 };
+/// Airy 1830 (OSGB36): a = 6 377 563.396 m, b = 6 356 256.909 m (Ordnance Survey).
+const AIRY_1830: Ellipsoid = Ellipsoid { a: 6_377_563.396, f: 1.0 - 6_356_256.909 / 6_377_563.396 };
+/// Clarke 1866 (NAD27): a = 6 378 206.4 m, b = 6 356 583.8 m.
+const CLARKE_1866: Ellipsoid = Ellipsoid { a: 6_378_206.4, f: 1.0 - 6_356_583.8 / 6_378_206.4 };
+
+fn ecef_on(ell: Ellipsoid, lat_deg: f64, lon_deg: f64, h: f64) -> [f64; 3] {
+    let e2 = ell.f * (2.0 - ell.f);
+    let (sp, cp) = lat_deg.to_radians().sin_cos();
+    let (sl, cl) = lon_deg.to_radians().sin_cos();
+    let n = ell.a / (1.0 - e2 * sp * sp).sqrt();
+    [(n + h) * cp * cl, (n + h) * cp * sl, (n * (1.0 - e2) + h) * sp]
+}
+
+/// WGS 84 latitude and longitude (degrees) of an ECEF point near the
+/// surface, by fixed-point iteration on the latitude.
+fn wgs84_of_ecef(p: [f64; 3]) -> (f64, f64) {
+    let e2 = WGS84.f * (2.0 - WGS84.f);
+    let r = p[0].hypot(p[1]);
+    let mut lat = p[2].atan2(r * (1.0 - e2));
+    for _ in 0..10 {
+        let n = WGS84.a / (1.0 - e2 * lat.sin().powi(2)).sqrt();
+        lat = p[2].atan2(r - e2 * n * lat.cos());
+    }
+    (lat.to_degrees(), p[1].atan2(p[0]).to_degrees())
+}
+
+/// A datum as the reference points need it: its ellipsoid and the Helmert
+/// transform (position-vector convention: translation m, rotations ″,
+/// scale ppm) that takes its ECEF coordinates to WGS 84's.
+struct Datum {
+    ellipsoid: Ellipsoid,
+    helmert: [f64; 7],
+}
+
+impl Datum {
+    /// The ECEF point at ellipsoidal height 0 on WGS 84 under the datum's
+    /// latitude/longitude: where a planar tileset puts height 0 there.
+    fn wgs84_ecef(&self, lat_deg: f64, lon_deg: f64) -> [f64; 3] {
+        let p = ecef_on(self.ellipsoid, lat_deg, lon_deg, 0.0);
+        let [tx, ty, tz, rx, ry, rz, s] = self.helmert;
+        let r = |arcsec: f64| (arcsec / 3600.0).to_radians();
+        let (rx, ry, rz, m) = (r(rx), r(ry), r(rz), 1.0 + s * 1e-6);
+        let q = [
+            tx + m * (p[0] - rz * p[1] + ry * p[2]),
+            ty + m * (rz * p[0] + p[1] - rx * p[2]),
+            tz + m * (-ry * p[0] + rx * p[1] + p[2]),
+        ];
+        let (lat, lon) = wgs84_of_ecef(q);
+        ecef_on(WGS84, lat, lon, 0.0)
+    }
+}
+
+/// GRS 80 datums held equal to WGS 84 (as their EPSG definitions do).
+const ETRS89: Datum = Datum { ellipsoid: GRS80, helmert: [0.0; 7] };
+const WGS84_DATUM: Datum = Datum { ellipsoid: WGS84, helmert: [0.0; 7] };
+/// OSGB36 → WGS 84: Ordnance Survey's published ETRS89 → OSGB36 Helmert
+/// (−446.448, +125.157, −542.060 m; −0.1502, −0.2470, −0.8421″; +20.4894
+/// ppm) with every sign turned (good to a few cm against the exact
+/// inverse; the transform itself is good to about 5 m against OSTN15).
+const OSGB36: Datum =
+    Datum { ellipsoid: AIRY_1830, helmert: [446.448, -125.157, 542.060, 0.1502, 0.2470, 0.8421, -20.4894] };
+/// NAD27 → WGS 84, the mean for the conterminous US (NIMA TR8350.2,
+/// table B.1, NAS-C: −8, 160, 176 m).
+const NAD27: Datum = Datum { ellipsoid: CLARKE_1866, helmert: [-8.0, 160.0, 176.0, 0.0, 0.0, 0.0, 0.0] };
+
+fn dms(d: f64, m: f64, s: f64) -> f64 {
+    d.signum() * (d.abs() + m / 60.0 + s / 3600.0)
+}
+
+/// Lambert-93 (EPSG:2154) from RGF93 latitude/longitude by IGN's published
+/// constants of the projection (n = 0.7256077650, C = 11 754 255.426 m,
+/// X_s = 700 000 m, Y_s = 12 655 612.050 m, λ0 = 3° E; GRS 80).
+fn lambert93(lat_deg: f64, lon_deg: f64) -> [f64; 2] {
+    let e = (GRS80.f * (2.0 - GRS80.f)).sqrt();
+    let (sp, phi) = (lat_deg.to_radians().sin(), lat_deg.to_radians());
+    let iso = ((std::f64::consts::FRAC_PI_4 + phi / 2.0).tan() * ((1.0 - e * sp) / (1.0 + e * sp)).powf(e / 2.0)).ln();
+    let (n, c) = (0.725_607_765_0, 11_754_255.426);
+    let r = c * (-n * iso).exp();
+    let gamma = n * (lon_deg - 3.0).to_radians();
+    [700_000.0 + r * gamma.sin(), 12_655_612.050 - r * gamma.cos()]
+}
+
+/// A flat float GeoTIFF of 41 × 41 samples `step` apart in EPSG `epsg`
+/// (projected; no linear-unit key, so the unit is the code's), PixelIsPoint,
+/// with sample (row, column) `at` on the point `xy`.
+fn write_projected_tif(path: &Path, epsg: u16, step: f64, at: (f64, f64), xy: [f64; 2]) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(41, 41).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelTiepointTag, &[at.1, at.0, 0.0, xy[0], xy[1], 0.0][..]).unwrap();
+    // Projected model, PixelIsPoint, ProjectedCSType = epsg.
+    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, epsg];
+    e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
+    img.write_data(&[0.0f32; 41 * 41]).unwrap();
+}
+
+/// One published point of a CRS: its projected coordinates and its
+/// latitude/longitude on the CRS's datum.
+struct Published {
+    epsg: u16,
+    /// Where the coordinates come from.
+    source: &'static str,
+    /// Source units per sample (metres, or US survey feet).
+    step: f64,
+    /// Metres per source unit, as the spacing must come out.
+    unit_m: f64,
+    xy: [f64; 2],
+    lat_lon: (f64, f64),
+    datum: Datum,
+}
+
+fn published_points() -> Vec<Published> {
+    vec![
+        Published {
+            epsg: 2154,
+            source: "Lambert-93 by IGN's published constants of the projection",
+            step: 25.0,
+            unit_m: 1.0,
+            xy: lambert93(45.5, 6.0),
+            lat_lon: (45.5, 6.0),
+            datum: ETRS89,
+        },
+        Published {
+            epsg: 3035,
+            source: "IOGP Guidance Note 7-2, Lambert Azimuthal Equal Area example",
+            step: 25.0,
+            unit_m: 1.0,
+            xy: [3_962_799.45, 2_999_718.85],
+            lat_lon: (50.0, 5.0),
+            datum: ETRS89,
+        },
+        Published {
+            // NAD27 / Texas South Central: the US State Plane of 1927, in US survey feet.
+            epsg: 32040,
+            source: "IOGP Guidance Note 7-2, Lambert Conic Conformal (2SP) example",
+            step: 100.0,
+            unit_m: 1200.0 / 3937.0,
+            xy: [2_963_503.91, 254_759.80],
+            lat_lon: (28.5, -96.0),
+            datum: NAD27,
+        },
+        Published {
+            // The Guidance Note's example is for EPSG:3032 (λ0 = 70° E, false
+            // origin 6 000 km both ways): the same point 70° further west on
+            // EPSG:3031 (λ0 = 0, no false origin) has the same offsets.
+            epsg: 3031,
+            source: "IOGP Guidance Note 7-2, Polar Stereographic (variant B) example",
+            step: 25.0,
+            unit_m: 1.0,
+            xy: [7_255_380.79 - 6_000_000.0, 7_053_389.56 - 6_000_000.0],
+            lat_lon: (-75.0, 50.0),
+            datum: WGS84_DATUM,
+        },
+        Published {
+            epsg: 27700,
+            source: "Ordnance Survey, Caister water tower (A guide to coordinate systems in Great Britain)",
+            step: 25.0,
+            unit_m: 1.0,
+            xy: [651_409.903, 313_177.270],
+            lat_lon: (dms(52.0, 39.0, 27.2531), dms(1.0, 43.0, 4.5177)),
+            datum: OSGB36,
+        },
+    ]
+}
+
+/// The tileset's centre frame (east, north, up unit vectors in ECEF) from
+/// its recorded placement, to split a miss into ground and height.
+fn enu_axes(ts: &Value) -> [[f64; 3]; 3] {
+    let p = &ts["extras"]["terrachunk"]["placement"];
+    let (lat, lon) = (p["lat_deg"].as_f64().unwrap().to_radians(), p["lon_deg"].as_f64().unwrap().to_radians());
+    let (sp, cp, sl, cl) = (lat.sin(), lat.cos(), lon.sin(), lon.cos());
+    [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
+}
+
+/// Builds a grid with sample `at` on the published point (checking its
+/// spacing in metres) and returns how far that sample lands from the
+/// point's ECEF position, along the ground and up, and its distance from
+/// the grid centre, metres.
+fn miss(dir: &Path, p: &Published, at: (f64, f64)) -> (f64, f64, f64) {
+    let dem = dir.join(format!("epsg{}_{}_{}.tif", p.epsg, at.0, at.1));
+    write_projected_tif(&dem, p.epsg, p.step, at, p.xy);
+    landing(&dem, p, at)
+}
+
+/// Builds `dem` (41 × 41 samples) beside itself and measures where sample
+/// `at` lands against the published point `p`, as [`miss`] says.
+fn landing(dem: &Path, p: &Published, at: (f64, f64)) -> (f64, f64, f64) {
+    let name = dem.file_stem().unwrap().to_string_lossy();
+    let out = dem.with_file_name(format!("out_{name}"));
+    let opts = crate::common::options(dem, &out, 0.5, 1);
+    let report = terrachunk::pipeline::build(&opts).unwrap_or_else(|e| panic!("EPSG:{}: {e}", p.epsg));
+    assert_eq!(report.not_placed, None, "EPSG:{}", p.epsg);
+    verified(&out);
+    let ts = tileset(&out);
+    let spacing = &ts["extras"]["terrachunk"]["spacing_m"];
+    for s in spacing.as_array().unwrap() {
+        let s = s.as_f64().unwrap();
+        assert!((s - p.step * p.unit_m).abs() < 1e-9, "EPSG:{}: spacing {s} m, not {} m", p.epsg, p.step * p.unit_m);
+    }
+    let got = apply(&ts, sample(&ts, at.0, at.1));
+    let want = p.datum.wgs84_ecef(p.lat_lon.0, p.lat_lon.1);
+    let d = [0, 1, 2].map(|r| got[r] - want[r]);
+    let axes = enu_axes(&ts);
+    let enu = axes.map(|ax| ax[0] * d[0] + ax[1] * d[1] + ax[2] * d[2]);
+    let from_centre = p.step * p.unit_m * (at.0 - 20.0).hypot(at.1 - 20.0);
+    (enu[0].hypot(enu[1]), enu[2], from_centre)
+}
+
+/// Lambert-93, ETRS89-LAEA, a US State Plane grid in feet, Antarctic polar
+/// stereographic and the British National Grid: a grid centred on a point
+/// whose coordinates are published lands that point on its ECEF position
+/// within 1 cm (the published coordinates are rounded to 1 cm or 1 mm: the
+/// misses were 0.02–3.3 mm). A grid whose north-west corner sample is on it
+/// lands that sample within 2 cm along the ground, 707 or 862 m from the
+/// grid centre (rounding, plus the change of the projection's scale
+/// across the grid, which the tileset's one linear map cannot follow: 8 mm
+/// for polar stereographic at 75° S, under 2 mm for the others), and d²/2R
+/// (4–6 cm) above the ellipsoid, as a planar tileset must, within 5 mm.
+#[test]
+fn grids_in_any_crs_land_on_published_points() {
+    let tmp = tempfile::tempdir().unwrap();
+    let r = 6_371_000.0;
+    for p in published_points() {
+        let (ground, up, _) = miss(tmp.path(), &p, (20.0, 20.0));
+        assert!(ground.hypot(up) < 0.01, "EPSG:{} ({}): centre {ground} m, {up} m up off", p.epsg, p.source);
+        let (ground, up, d) = miss(tmp.path(), &p, (0.0, 0.0));
+        assert!(ground < 0.02, "EPSG:{} ({}): corner {ground} m off along the ground", p.epsg, p.source);
+        let float = d * d / (2.0 * r);
+        assert!((up - float).abs() < 0.005, "EPSG:{} ({}): corner {up} m up, not {float}", p.epsg, p.source);
+    }
+}
+
+/// An ASCII grid takes its CRS from the `.prj` beside it: the EPSG code
+/// in its WKT (here a compound CRS, British National Grid + Newlyn
+/// heights), or a PROJ.4 definition (here Lambert-93's); its sample
+/// centred on the published point lands within 1 cm of it.
+#[test]
+fn an_ascii_grid_is_placed_by_the_crs_its_prj_names() {
+    let tmp = tempfile::tempdir().unwrap();
+    let points = published_points();
+    let bng = points.iter().find(|p| p.epsg == 27700).unwrap();
+    let l93 = points.iter().find(|p| p.epsg == 2154).unwrap();
+    let wkt = r#"COMPD_CS["OSGB 1936 / British National Grid + ODN height",
+        PROJCS["OSGB 1936 / British National Grid",GEOGCS["OSGB 1936",DATUM["OSGB_1936",
+        SPHEROID["Airy 1830",6377563.396,299.3249646,AUTHORITY["EPSG","7001"]],AUTHORITY["EPSG","6277"]],
+        PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AUTHORITY["EPSG","4277"]],
+        PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",49],UNIT["metre",1],
+        AUTHORITY["EPSG","27700"]],VERT_CS["ODN height",VERT_DATUM["Ordnance Datum Newlyn",2005],
+        UNIT["metre",1],AUTHORITY["EPSG","5701"]],AUTHORITY["EPSG","7405"]]"#;
+    let proj4 = "+proj=lcc +lat_1=49 +lat_2=44 +lat_0=46.5 +lon_0=3 +x_0=700000 +y_0=6600000 +ellps=GRS80 \
+                 +towgs84=0,0,0,0,0,0,0 +units=m +no_defs";
+    for (name, prj, p) in [("bng", wkt, bng), ("l93", proj4, l93)] {
+        let cell = p.step;
+        let mut text = format!(
+            "ncols 41\nnrows 41\nxllcorner {}\nyllcorner {}\ncellsize {cell}\n",
+            p.xy[0] - 20.5 * cell,
+            p.xy[1] - 20.5 * cell
+        );
+        text += &"0 ".repeat(41 * 41);
+        let dem = tmp.path().join(format!("{name}.asc"));
+        std::fs::write(&dem, text).unwrap();
+        std::fs::write(dem.with_extension("prj"), prj).unwrap();
+        let (ground, up, _) = landing(&dem, p, (20.0, 20.0));
+        assert!(ground.hypot(up) < 0.01, "{name}.asc: centre {ground} m, {up} m up off");
+    }
+}
+
+/// A GeoTIFF in a CRS no definition covers (EPSG code 9999 names none)
+/// still builds, in its local frame, and the build says why it is not on
+/// the globe.
+#[test]
+fn a_crs_the_library_does_not_know_builds_unplaced_and_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("unknown.tif");
+    write_projected_tif(&dem, 9999, 25.0, (0.0, 0.0), [500_000.0, 5_000_000.0]);
+    let out = tmp.path().join("out");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", "none"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning: not placed on the globe: EPSG:9999 is not a coordinate system terrachunk knows"),
+        "{err}"
+    );
+    let ts = tileset(&out);
+    assert!(ts["root"].get("transform").is_none() && ts["extras"]["terrachunk"].get("placement").is_none());
+    assert_eq!(ts["extras"]["terrachunk"]["spacing_m"], serde_json::json!([25.0, 25.0]));
+    verified(&out);
 }

@@ -59,6 +59,7 @@ pub fn load_texture_bytes(data: &[u8]) {
             origin: [500_005.0, 4_999_995.0],
             step: [10.0, -10.0],
             local_tangent: None,
+            definition: None,
         },
         source: "dem.tif".into(),
     };

@@ -3,10 +3,11 @@
 //! Header keywords, in any case and order: `ncols`, `nrows`,
 //! `xllcorner`|`xllcenter`, `yllcorner`|`yllcenter`, `cellsize` (or GDAL's
 //! `dx`/`dy`), and optionally `NODATA_value`. The file does not name its
-//! coordinate system; it is read as projected metres (spacing = cellsize)
-//! unless a `.prj` beside it describes a geographic one (`GEOGCS` without
-//! `PROJCS`), in which case the cell size is degrees and the grid goes
-//! through the local tangent plane.
+//! coordinate system; a `.prj` beside it may (`super::prj`: an EPSG code in
+//! its WKT, or a PROJ.4 string). The grid is read as projected (spacing =
+//! cellsize times the CRS's linear unit, metres unless the CRS says feet)
+//! unless the `.prj` describes a geographic CRS, in which case the cell
+//! size is degrees and the grid goes through the local tangent plane.
 //!
 //! A value equal to `NODATA_value` is nodata. `NaN` is nodata only when the
 //! header says so (`NODATA_value nan`); anywhere else it is refused, as is a
@@ -15,7 +16,9 @@
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 
+use super::prj::crs_of_prj;
 use super::{DemError, check_stored, corrupt, file_name, invalid, io_error, sample_count};
+use crate::geodesy::SourceCrs;
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 #[derive(Default)]
@@ -213,18 +216,22 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let y_south = if y_centre { yll } else { yll + dy / 2.0 };
     let y0 = y_south + dy * nrows.saturating_sub(1) as f64;
 
-    let geographic = prj_is_geographic(path);
+    let (crs, definition) = read_prj(path).map_or((Crs::Projected { epsg: None }, None), |t| crs_of_prj(&t));
+    let geographic = matches!(crs, Crs::Geographic { .. });
+    let mut spacing_m = [dx, dy];
+    if !geographic && let Ok(source) = SourceCrs::of(&crs, definition.as_deref()) {
+        // Feet grids become metres; Mercator's are scaled to the ground at
+        // the centre, as for GeoTIFF (`geotiff::georeference`).
+        let mid = [x0 + dx * ncols.saturating_sub(1) as f64 / 2.0, y0 - dy * nrows.saturating_sub(1) as f64 / 2.0];
+        let k = source.metres_per_unit() * source.ground_per_grid_m(mid).unwrap_or(1.0);
+        spacing_m = [dx * k, dy * k];
+    }
     let mut hf = Heightfield {
         width: ncols,
         height: nrows,
         heights,
-        spacing_m: [dx, dy],
-        georef: Georef {
-            crs: if geographic { Crs::Geographic { epsg: None } } else { Crs::Projected { epsg: None } },
-            origin: [x0, y0],
-            step: [dx, -dy],
-            local_tangent: None,
-        },
+        spacing_m,
+        georef: Georef { crs, origin: [x0, y0], step: [dx, -dy], local_tangent: None, definition },
         source: file_name(path),
     };
     if geographic && dx > 0.0 && dy > 0.0 {
@@ -237,8 +244,8 @@ fn is_number(token: &str) -> bool {
     token.parse::<f64>().is_ok()
 }
 
-/// A `.prj` beside the grid whose WKT is a geographic (not projected) CRS.
-fn prj_is_geographic(path: &Path) -> bool {
+/// The text of the `.prj` beside the grid, if there is one to read.
+fn read_prj(path: &Path) -> Option<String> {
     let prj = path.with_extension("prj");
     // Only a regular file, and only its start: a FIFO or a huge file
     // named like the grid must not stall the load.
@@ -251,12 +258,5 @@ fn prj_is_geographic(path: &Path) -> bool {
         std::fs::File::open(p)?.take(1 << 16).read_to_string(&mut text)?;
         Ok(text)
     };
-    match read(&prj) {
-        Ok(wkt) => {
-            let upper = wkt.to_ascii_uppercase();
-            let upper = upper.trim_start();
-            (upper.starts_with("GEOGCS") || upper.starts_with("GEOGCRS")) && !upper.contains("PROJCS")
-        }
-        Err(_) => false,
-    }
+    read(&prj).ok()
 }

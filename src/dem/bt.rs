@@ -143,7 +143,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         height,
         heights,
         spacing_m: [dx * unit_m, dy * unit_m],
-        georef: Georef { crs: Crs::Unknown, origin, step: [dx, -dy], local_tangent: None },
+        georef: Georef { crs: Crs::Unknown, origin, step: [dx, -dy], local_tangent: None, definition: None },
         source: file_name(path),
     };
     if units == 0 {

@@ -17,9 +17,13 @@
 //! The same tags place an 8-bit gray/RGB(A) TIFF used as a texture
 //! ([`load_rgb8`]); the DEM reader itself refuses colour images.
 //!
-//! Web Mercator (EPSG:3857 and its aliases) is not a metric grid on the
-//! ground: its "metres" are stretched by 1/cos(latitude). Its spacing is
-//! therefore scaled by cos(latitude) at the grid centre, so heights and
+//! A projected grid's spacing is in metres: its steps times the linear
+//! unit, from the ProjLinearUnits key or else the EPSG code's definition
+//! (US State Plane grids are often in US survey feet and say so only by
+//! their code). Mercator (Web Mercator, EPSG:3857 and its aliases, above
+//! all) is not a metric grid on the ground: its "metres" are stretched by
+//! 1/cos(latitude). Its spacing is therefore scaled by cos(latitude) at the
+//! grid centre (`geodesy::SourceCrs::ground_per_grid_m`), so heights and
 //! horizontal distances are both true metres.
 
 use std::cell::Cell;
@@ -33,6 +37,7 @@ use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 
 use super::{DemError, check_expansion, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
+use crate::geodesy::SourceCrs;
 use crate::heightfield::{Crs, Georef, Heightfield};
 
 /// GeoKey ids (GeoTIFF 1.1, section 7).
@@ -41,9 +46,6 @@ const GT_RASTER_TYPE: u16 = 1025;
 const GEOGRAPHIC_TYPE: u16 = 2048;
 const PROJECTED_CS_TYPE: u16 = 3072;
 const PROJ_LINEAR_UNITS: u16 = 3076;
-
-/// EPSG codes that name spherical Web Mercator.
-const WEB_MERCATOR: [u32; 5] = [3857, 3785, 900_913, 102_100, 102_113];
 
 /// The file under the decoder, readable only within one byte range while
 /// a strip or tile is decoded: the `tiff` crate reads an uncompressed or
@@ -136,7 +138,13 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
         height,
         heights,
         spacing_m: [1.0, 1.0],
-        georef: Georef { crs: Crs::Unknown, origin: [0.0, 0.0], step: [1.0, -1.0], local_tangent: None },
+        georef: Georef {
+            crs: Crs::Unknown,
+            origin: [0.0, 0.0],
+            step: [1.0, -1.0],
+            local_tangent: None,
+            definition: None,
+        },
         source: file_name(path),
     };
     let mut dec = dec.with_limits(tag_limits(file_len));
@@ -519,10 +527,17 @@ fn raw_georef<R: std::io::Read + std::io::Seek>(
         _ => Crs::Unknown,
     };
     let unit_m = match keys.get(&PROJ_LINEAR_UNITS) {
+        Some(9001) => 1.0,
         Some(9002) => 0.3048,
         Some(9003) => 1200.0 / 3937.0,
         Some(9036) => 1000.0,
-        _ => 1.0,
+        // No key (or one not listed here): the unit the EPSG code defines.
+        _ => match crs {
+            Crs::Projected { epsg: Some(code) } => {
+                SourceCrs::from_epsg(code).map_or(1.0, |source| source.metres_per_unit())
+            }
+            _ => 1.0,
+        },
     };
     Ok(Some(RawGeoref { origin, step, crs, unit_m }))
 }
@@ -550,15 +565,19 @@ fn georeference(path: &Path, dec: &mut TiffDecoder, hf: &mut Heightfield) -> Res
             hf.georef.crs = crs;
             hf.apply_local_tangent();
         }
-        Crs::Projected { epsg: code } => {
-            hf.georef.crs = crs;
+        Crs::Projected { .. } => {
             let mut spacing = [step[0].abs() * unit_m, step[1].abs() * unit_m];
-            if code.is_some_and(|c| WEB_MERCATOR.contains(&c)) {
-                // Spherical Mercator: y = R·ln tan(π/4 + φ/2), so φ = atan(sinh(y/R)).
-                let y_mid = origin[1] + step[1] * (hf.height - 1) as f64 / 2.0;
-                let lat = (y_mid / 6_378_137.0).sinh().atan();
-                spacing = [spacing[0] * lat.cos(), spacing[1] * lat.cos()];
+            if let Ok(source) = SourceCrs::of(&crs, None) {
+                let mid = [
+                    origin[0] + step[0] * (hf.width - 1) as f64 / 2.0,
+                    origin[1] + step[1] * (hf.height - 1) as f64 / 2.0,
+                ];
+                // A centre off the Earth keeps the grid's own metres; it
+                // gets no placement either.
+                let k = source.ground_per_grid_m(mid).unwrap_or(1.0);
+                spacing = [spacing[0] * k, spacing[1] * k];
             }
+            hf.georef.crs = crs;
             hf.spacing_m = spacing;
         }
         Crs::Unknown => {

@@ -245,6 +245,7 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
             origin: [f64::from(lon_min), f64::from(lat_max + 1)],
             step: [step, -step],
             local_tangent: None,
+            definition: None,
         },
         source,
     };

@@ -16,7 +16,7 @@
 //! | GeoTIFF | `.tif`, `.tiff` | one band of int 8/16/32/64, uint 8/16/32/64, float 16/32/64; strips or tiles; uncompressed, LZW, DEFLATE, PackBits, with or without predictor | GeoKeys, `GDAL_NODATA` |
 //! | PNG | `.png` | 8- or 16-bit grayscale (value = metres), 8-bit RGB(A) Mapbox Terrain-RGB | none |
 //! | SRTM | `.hgt` | big-endian int16, square; several tiles (or a folder) form a mosaic | from the file name |
-//! | ESRI ASCII grid | `.asc` | text | header (CRS unknown: read as projected metres unless a `.prj` beside it is geographic) |
+//! | ESRI ASCII grid | `.asc` | text | header, and the CRS a `.prj` beside it names (an EPSG code in its WKT, or PROJ.4 text; else projected metres of no named CRS) |
 //! | VTP BT 1.1–1.3 | `.bt` | int16, int32, float32 | header |
 //! | OpenEXR | `.exr` | one float16/float32 channel | none |
 //!
@@ -33,6 +33,7 @@ mod bt;
 mod exr;
 pub(crate) mod geotiff;
 mod hgt;
+mod prj;
 
 pub(crate) use hgt::is_hgt;
 mod png;

@@ -22,7 +22,7 @@ use std::time::Instant;
 use crate::config::{Config, ConfigError};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::Placement;
-use crate::heightfield::{Heightfield, void_fill};
+use crate::heightfield::{Crs, Heightfield, void_fill};
 use crate::mesh::MeshError;
 use crate::mesh::grid::Grid;
 use crate::output::compress::QuantizeError;
@@ -195,6 +195,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     let mut extras = tileset_extras(&hf, opts, &tree);
     extras.source = SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
     extras.texture = texture;
+    report.not_placed = not_placed(&hf);
     let doc = tileset_json(&tree, &records, &extras);
     // Compact: a client reads the whole index before it draws anything,
     // and indentation was four fifths of it. `jq . tileset.json` reads it.
@@ -234,6 +235,15 @@ fn check_extent(hf: &Heightfield, opts: &BuildOptions) -> Result<(), BuildError>
     Err(BuildError::Extent { files: files.join(", "), extent_m: extent, spacing_m: hf.spacing_m })
 }
 
+/// Why a georeferenced grid gets no root transform; `None` when it gets
+/// one or when the file places it nowhere at all (nothing to warn about).
+fn not_placed(hf: &Heightfield) -> Option<String> {
+    if hf.georef.crs == Crs::Unknown {
+        return None;
+    }
+    Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).err().map(|why| why.to_string())
+}
+
 pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
     TilesetExtras {
         generator: format!("terrachunk {}", env!("CARGO_PKG_VERSION")),
@@ -246,7 +256,7 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
         delta_m: tree.delta_m.clone(),
         source: Vec::new(),
         georef: hf.georef.clone(),
-        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m),
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok(),
         morph: MorphConvention {
             target: "parent".into(),
             delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \

@@ -112,6 +112,10 @@ pub struct Report {
     /// left next to their cut points (each written at the margin that came
     /// closest; `verify` reports them).
     pub over_delta_as_written: Vec<OverDelta>,
+    /// Why a georeferenced grid got no root transform (its CRS is not
+    /// named, not known, or not one the projection library can invert);
+    /// absent when it was placed or the file has no georeference at all.
+    pub not_placed: Option<String>,
 }
 
 /// A chunk whose error as written is beyond its δ.
@@ -275,6 +279,19 @@ impl Report {
                  `verify` reports them, --compress none avoids it): {}",
                 over.len(),
                 worst_over_delta(over, 10)
+            )
+        })
+    }
+}
+
+impl Report {
+    /// The warning for a georeferenced grid the tileset does not place on
+    /// the globe, if it is one.
+    pub fn not_placed_warning(&self) -> Option<String> {
+        self.not_placed.as_ref().map(|why| {
+            format!(
+                "warning: not placed on the globe: {why}; the tileset has no root transform and stays in its \
+                 local frame"
             )
         })
     }

@@ -245,7 +245,7 @@ pub(super) fn content_in_box(c: &ChunkFile, bbox: &Obb) -> Option<String> {
 /// gives (none where it gives none), entry by entry within the rounding
 /// of the arithmetic that makes it.
 pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<String>) {
-    let want = Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).map(|p| p.transform());
+    let want = Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| p.transform());
     let got = &ts["root"]["transform"];
     match (want, got.as_array()) {
         (None, None) => {}
