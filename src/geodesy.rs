@@ -187,9 +187,17 @@ impl Placement {
             scale,
             method: format!(
                 "{how}; the tileset stays planar (ground d m from the centre floats d^2/2R above the \
-                 ellipsoid), DEM heights are used as ellipsoidal (no geoid)"
+                 ellipsoid), {NO_GEOID}"
             ),
         })
+    }
+
+    /// The placement of a grid whose heights had the undulation of the
+    /// geoid model `name` added (`crate::geoid`): its method says so.
+    pub fn with_geoid(mut self, name: &str) -> Placement {
+        let heights = format!("DEM heights plus the undulation of geoid model {name} (bilinear) are ellipsoidal");
+        self.method = self.method.replace(NO_GEOID, &heights);
+        self
     }
 
     /// The root `transform`: column-major 4×4, tileset metres → ECEF metres.
@@ -206,6 +214,9 @@ impl Placement {
         [c0[0], c0[1], c0[2], 0.0, c1[0], c1[1], c1[2], 0.0, u[0], u[1], u[2], 0.0, t[0], t[1], t[2], 1.0]
     }
 }
+
+/// What the placement's method says of heights without a geoid model.
+const NO_GEOID: &str = "DEM heights are used as ellipsoidal (no geoid)";
 
 /// The `proj4rs` release the placement's `method` names (Cargo.toml's).
 const PROJ4RS_VERSION: &str = "0.3";

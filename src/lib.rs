@@ -15,6 +15,7 @@ pub mod chunk;
 pub mod config;
 pub mod dem;
 pub mod geodesy;
+pub mod geoid;
 pub mod heightfield;
 pub mod lod;
 pub mod mesh;

@@ -52,6 +52,10 @@ enum Command {
         /// DEM to check against (default: the source named in tileset.json).
         #[arg(long)]
         dem: Vec<PathBuf>,
+        /// Geoid model the tileset was built with (default: the one named
+        /// in tileset.json, found beside it like the DEM).
+        #[arg(long, value_name = "GRID")]
+        geoid: Option<PathBuf>,
     },
     /// Print one chunk's level, δ, counts, bounds and morph range.
     Inspect {
@@ -104,6 +108,10 @@ struct BuildArgs {
     /// Ground spacing in metres: `S` or `SX,SZ`.
     #[arg(long, value_parser = parse_spacing)]
     spacing: Option<[f64; 2]>,
+    /// Geoid model (.gtx or geographic GeoTIFF, e.g. PROJ's egm96_15) whose
+    /// undulation makes heights ellipsoidal [default: heights as given].
+    #[arg(long, value_name = "GRID")]
+    geoid: Option<PathBuf>,
     /// Colour image for the chunks (PNG, JPEG, 8-bit GeoTIFF), or `none`
     /// for untextured chunks [default: a hillshade generated from the DEM].
     #[arg(long, value_name = "IMAGE|none")]
@@ -350,9 +358,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::from(e.exit_code() as u8))
             }
         },
-        Command::Verify { dir, dem } => {
+        Command::Verify { dir, dem, geoid } => {
             let over = (!dem.is_empty()).then_some(dem.as_slice());
-            let r = match verify_with_progress(&dir, over, std::io::stderr().is_terminal()) {
+            let r = match verify_with_progress(&dir, over, geoid.as_deref(), std::io::stderr().is_terminal()) {
                 Ok(r) => r,
                 Err(e) => {
                     eprintln!("error: {e}");
@@ -405,6 +413,7 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
         threads,
         vertical_scale,
         spacing,
+        geoid,
         texture,
         texture_format,
         jpeg_quality,
@@ -475,6 +484,7 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
         config: cfg,
         texture: texture.as_deref().map_or(TextureSource::Generated, TextureSource::from_arg),
         progress: std::io::stderr().is_terminal(),
+        geoid,
     };
     Ok((opts, report))
 }

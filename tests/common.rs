@@ -28,6 +28,7 @@ pub(crate) fn with_config(dem: &Path, out: &Path, config: Config) -> BuildOption
         config,
         texture: TextureSource::Generated,
         progress: false,
+        geoid: None,
     }
 }
 

@@ -5,6 +5,7 @@ mod bench;
 mod common;
 mod compress;
 mod dem;
+mod geoid;
 mod goldens;
 mod hard_cases;
 mod loader_limits;

@@ -27,6 +27,7 @@ fn build_with(dem: &Path, out: &Path, config: Config, texture: TextureSource) ->
         config,
         texture,
         progress: false,
+        geoid: None,
     };
     build(&opts).unwrap_or_else(|e| panic!("{}: {e}", dem.display()))
 }
@@ -369,6 +370,7 @@ fn a_georeferenced_geotiff_lands_at_its_coordinates() {
             config: Config::default(),
             texture: TextureSource::Image(img.clone()),
             progress: false,
+            geoid: None,
         };
         let e = build(&opts).unwrap_err();
         let msg = e.to_string();

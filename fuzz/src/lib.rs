@@ -123,6 +123,7 @@ fn template() -> &'static Template {
             config,
             texture: terrachunk::texture::TextureSource::None,
             progress: false,
+            geoid: None,
         };
         build(&options).expect("the template tileset builds");
         let mut files = vec![PathBuf::from("tileset.json")];

@@ -113,7 +113,7 @@ fn open(path: &Path) -> Result<Opened, DemError> {
 }
 
 /// Read a GeoTIFF DEM.
-pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
+pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
     let n = sample_count(path, width, height)?;

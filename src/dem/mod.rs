@@ -48,6 +48,9 @@ pub struct LoadOptions {
     /// Files without a georeference (PNG, EXR, a GeoTIFF without GeoKeys)
     /// otherwise get 1 m.
     pub spacing_m: Option<[f64; 2]>,
+    /// A geoid model (`.gtx` or geographic GeoTIFF) whose undulation is
+    /// added to every height, making them ellipsoidal (`crate::geoid`).
+    pub geoid: Option<PathBuf>,
 }
 
 /// What can go wrong while loading a DEM. Every variant names the file.
@@ -251,7 +254,11 @@ pub fn load(paths: &[PathBuf], opts: &LoadOptions) -> Result<Heightfield, DemErr
     } else {
         (load_one(first, opts)?, first.clone())
     };
-    finish(&name_for_errors, hf, opts)
+    let mut hf = finish(&name_for_errors, hf, opts)?;
+    if let Some(model) = &opts.geoid {
+        crate::geoid::Geoid::read(model)?.apply(&mut hf, &name_for_errors, model)?;
+    }
+    Ok(hf)
 }
 
 /// Reject overrides no grid could use, before reading anything.

@@ -233,7 +233,15 @@ impl Rtin {
             c *= 2;
         }
         let errors = field.errors.into_iter().map(|e| f32::from_bits(e.into_inner())).collect();
-        Rtin { width: grid.width, height: grid.height, errors, top, ladder, step: height_step, densest: Mutex::default() }
+        Rtin {
+            width: grid.width,
+            height: grid.height,
+            errors,
+            top,
+            ladder,
+            step: height_step,
+            densest: Mutex::default(),
+        }
     }
 
     /// Whether this field meshes `tree`'s chunks with heights rounded to

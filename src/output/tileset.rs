@@ -47,6 +47,11 @@ pub struct TilesetExtras {
     /// same DEM gives the same bytes from anywhere): `verify` finds them
     /// by name beside the tileset and uses one only if its content matches.
     pub source: Vec<SourceFile>,
+    /// The geoid model whose undulation was added to the DEM's heights
+    /// (`--geoid`), by name and content as `source`; absent: the heights
+    /// are the DEM's as given, taken as ellipsoidal.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geoid: Option<SourceFile>,
     /// Georeference of the source, and the local tangent plane if geographic.
     pub georef: Georef,
     /// Where the root `transform` puts the grid on the WGS 84 globe (absent

@@ -52,6 +52,15 @@ pub struct BuildOptions {
     pub texture: TextureSource,
     /// Draw a progress bar (when stderr is a terminal).
     pub progress: bool,
+    /// A geoid model whose undulation makes the DEM's heights ellipsoidal
+    /// (`crate::geoid`); absent: heights as given.
+    pub geoid: Option<PathBuf>,
+}
+
+/// How [`dem::load`] reads the inputs of `opts`.
+fn load_options(opts: &BuildOptions) -> LoadOptions {
+    let cfg = &opts.config;
+    LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m, geoid: opts.geoid.clone() }
 }
 
 /// Why a build failed.
@@ -182,8 +191,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         reads.push(image);
     }
     let out = OutDir::claim(&opts.out, &reads, opts.force)?;
-    let hf =
-        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    let hf = dem::load(&opts.inputs, &load_options(opts))?;
     check_extent(&hf, opts)?;
     let t_load = t0.elapsed();
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
@@ -194,6 +202,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     let t_idx = Instant::now();
     let mut extras = tileset_extras(&hf, opts, &tree);
     extras.source = SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
+    extras.geoid = geoid_file(opts)?;
     extras.texture = texture;
     report.not_placed = not_placed(&hf);
     let doc = tileset_json(&tree, &records, &extras);
@@ -222,6 +231,14 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
 /// circumference. A wider grid is no terrain (its spacing is wrong), and
 /// its positions would lose metres in f32 and its geometric errors overflow.
 pub const MAX_EXTENT_M: f64 = 4.0e7;
+
+/// The geoid model's name, length and hash for the extras.
+fn geoid_file(opts: &BuildOptions) -> Result<Option<SourceFile>, BuildError> {
+    opts.geoid
+        .as_ref()
+        .map(|p| SourceFile::of(p).map_err(|source| BuildError::Io { path: p.clone(), source }))
+        .transpose()
+}
 
 /// Refuses a grid whose extent, from its sample count and spacing (the
 /// file's own or `spacing_m`), is beyond [`MAX_EXTENT_M`].
@@ -255,8 +272,12 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
         levels: tree.depth() + 1,
         delta_m: tree.delta_m.clone(),
         source: Vec::new(),
+        geoid: None,
         georef: hf.georef.clone(),
-        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok(),
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| match &opts.geoid {
+            Some(model) => p.with_geoid(&dem::file_name(model)),
+            None => p,
+        }),
         morph: MorphConvention {
             target: "parent".into(),
             delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \
@@ -308,8 +329,7 @@ fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, BuildError> {
 pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
     opts.config.validate()?;
     let cfg = &opts.config;
-    let hf =
-        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    let hf = dem::load(&opts.inputs, &load_options(opts))?;
     check_extent(&hf, opts)?;
     let filled = void_fill(&hf);
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
@@ -334,8 +354,7 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
 pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &Path) -> Result<PartBuilt, BuildError> {
     opts.config.validate()?;
     let cfg = &opts.config;
-    let hf =
-        dem::load(&opts.inputs, &LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m })?;
+    let hf = dem::load(&opts.inputs, &load_options(opts))?;
     check_extent(&hf, opts)?;
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
     let pool = thread_pool(threads)?;
@@ -358,6 +377,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
         let mut extras = tileset_extras(&hf, opts, &tree);
         extras.source =
             SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;
+        extras.geoid = geoid_file(opts)?;
         extras.texture = texture;
         Ok(PartBuilt { report, records, extras })
     })

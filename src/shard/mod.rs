@@ -144,6 +144,9 @@ pub struct Manifest {
     pub inputs: Vec<PathBuf>,
     /// The colour source.
     pub texture: Texture,
+    /// The geoid model, as given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geoid: Option<PathBuf>,
     /// The tileset to write (absolute).
     pub out: PathBuf,
     /// Replace an existing OUT.
@@ -303,6 +306,7 @@ pub fn plan(opts: &BuildOptions, shards: usize, work: &Path) -> Result<PathBuf, 
         cwd,
         inputs: opts.inputs.clone(),
         texture,
+        geoid: opts.geoid.clone(),
         out,
         force: opts.force,
         config: opts.config.clone(),
@@ -547,6 +551,7 @@ fn options(m: &Manifest) -> BuildOptions {
             Texture::Image(p) => TextureSource::Image(m.cwd.join(p)),
         },
         progress: false,
+        geoid: m.geoid.as_ref().map(|p| m.cwd.join(p)),
     }
 }
 
@@ -571,7 +576,7 @@ fn manifest_hash(m: &Manifest) -> Result<String, ShardError> {
         TextureSource::Image(p) => Some(p.clone()),
         _ => None,
     };
-    for p in opts.inputs.iter().chain(&image) {
+    for p in opts.inputs.iter().chain(&image).chain(&opts.geoid) {
         if p.is_dir() {
             let mut inside: Vec<PathBuf> = std::fs::read_dir(p)
                 .map_err(io(p))?

@@ -163,6 +163,7 @@ mod tests {
                 config,
                 texture: TextureSource::None,
                 progress: false,
+                geoid: None,
             };
             build(&options).unwrap();
             let mut chunks = BTreeMap::new();

@@ -152,7 +152,7 @@ pub struct TextureLevelCheck {
 
 /// Checks the tileset at `dir`; `dem` overrides the source it names.
 pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyReport, VerifyError> {
-    verify_with_progress(dir, dem_override, false)
+    verify_with_progress(dir, dem_override, None, false)
 }
 
 /// [`verify`], with a progress bar over the chunks on stderr where
@@ -161,6 +161,7 @@ pub fn verify(dir: &Path, dem_override: Option<&[PathBuf]>) -> Result<VerifyRepo
 pub fn verify_with_progress(
     dir: &Path,
     dem_override: Option<&[PathBuf]>,
+    geoid_override: Option<&Path>,
     progress: bool,
 ) -> Result<VerifyReport, VerifyError> {
     let (ts_path, text) = read::read_index(dir)?;
@@ -183,7 +184,20 @@ pub fn verify_with_progress(
         Some(d) => d.to_vec(),
         None => source::locate(dir, &ts_path, &extras.source)?,
     };
-    let opts = LoadOptions { vertical_scale: Some(extras.vertical_scale), spacing_m: Some(extras.spacing_m) };
+    // The heights the build meshed: the DEM's plus the same geoid model's
+    // undulation, when one was given.
+    let geoid = match (&extras.geoid, geoid_override) {
+        (Some(_), Some(g)) => Some(g.to_path_buf()),
+        (Some(model), None) => Some(source::locate_one(dir, &ts_path, model)?),
+        (None, Some(g)) => {
+            return Err(file_err(
+                &ts_path,
+                format!("was built without a geoid model; --geoid {} does not apply", g.display()),
+            ));
+        }
+        (None, None) => None,
+    };
+    let opts = LoadOptions { vertical_scale: Some(extras.vertical_scale), spacing_m: Some(extras.spacing_m), geoid };
     let hf = dem::load(&sources, &opts)?;
     if [hf.width as u32, hf.height as u32] != [extras.grid.width, extras.grid.height] {
         report.failures.push(format!(

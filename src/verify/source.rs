@@ -23,7 +23,7 @@ pub(super) fn locate(dir: &Path, index: &Path, sources: &[SourceFile]) -> Result
     sources.iter().map(|s| locate_one(dir, index, s)).collect()
 }
 
-fn locate_one(dir: &Path, index: &Path, s: &SourceFile) -> Result<PathBuf, VerifyError> {
+pub(super) fn locate_one(dir: &Path, index: &Path, s: &SourceFile) -> Result<PathBuf, VerifyError> {
     let mut parts = Path::new(&s.name).components();
     let plain = matches!((parts.next(), parts.next()), (Some(Component::Normal(_)), None))
         && !s.name.contains(['/', '\\', '\0']);
@@ -51,8 +51,8 @@ fn locate_one(dir: &Path, index: &Path, s: &SourceFile) -> Result<PathBuf, Verif
     Err(file_err(
         index,
         format!(
-            "the DEM it was built from, {} ({} bytes, SHA-256 {}), is looked for in the tileset's folder \
-             and the one above it: {found}; give it with --dem",
+            "the file it was built from, {} ({} bytes, SHA-256 {}), is looked for in the tileset's folder \
+             and the one above it: {found}; give it with --dem (the DEM) or --geoid (a geoid model)",
             s.name, s.bytes, s.sha256
         ),
     ))

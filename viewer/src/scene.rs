@@ -445,6 +445,7 @@ mod tests {
                 config: Config { max_error_m: 2.0, compress, ..Config::default() },
                 texture: TextureSource::Generated,
                 progress: false,
+                geoid: None,
             })
             .unwrap();
             Tileset::open(&dir).unwrap()
@@ -490,6 +491,7 @@ mod tests {
             config: Config { max_error_m: 0.5, ..Config::default() },
             texture: TextureSource::None,
             progress: false,
+            geoid: None,
         })
         .unwrap();
         dir

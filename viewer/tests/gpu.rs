@@ -54,6 +54,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
             config: Config { max_error_m: 2.0, threads: 0, ..Config::default() },
             texture: TextureSource::Generated,
             progress: false,
+            geoid: None,
         })
         .unwrap();
         let reference = Heights::from_leaves(&Tileset::open(&dir).unwrap());
@@ -568,6 +569,7 @@ fn build_into(dir: &Path, dem: &Path, config: Config, texture: TextureSource) {
         config,
         texture,
         progress: false,
+        geoid: None,
     })
     .unwrap();
 }
