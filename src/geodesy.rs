@@ -77,6 +77,100 @@ pub struct Placement {
     pub scale: f64,
     /// How the transform was made, and what it leaves out.
     pub method: String,
+    /// How far the planar tileset, as the transform places it, lies from
+    /// where its samples are on the ellipsoid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flat_frame_error: Option<FlatFrameError>,
+}
+
+/// The largest distance between a sample as a client draws it (its
+/// tileset position through the root transform) and its true position on
+/// the WGS 84 ellipsoid, both at height 0, over the grid's corners, its
+/// border and a lattice inside; the planar frame's price, which grows as
+/// the square of the grid's size (d²/2R upwards at d from the centre).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FlatFrameError {
+    /// Along the ellipsoid normal at the true position, metres (positive:
+    /// drawn above it).
+    pub vertical_m: f64,
+    /// Across the normal, metres.
+    pub horizontal_m: f64,
+    /// The sample `[row, column]` drawn farthest from its place.
+    pub at: [usize; 2],
+}
+
+impl FlatFrameError {
+    /// Measures the placement of the `width` × `height` grid of `georef`,
+    /// `spacing_m` apart in the tileset, by the column-major root
+    /// `transform`; `None` when its CRS cannot be taken to WGS 84.
+    pub fn measure(
+        georef: &Georef,
+        width: usize,
+        height: usize,
+        spacing_m: [f64; 2],
+        transform: &[f64; 16],
+    ) -> Option<FlatFrameError> {
+        let source = SourceCrs::of(&georef.crs, georef.definition.as_deref()).ok()?;
+        let mut worst = FlatFrameError { vertical_m: 0.0, horizontal_m: 0.0, at: [0, 0] };
+        let mut farthest = -1.0;
+        for (i, j) in probe_samples(width, height) {
+            let src = [georef.origin[0] + georef.step[0] * j as f64, georef.origin[1] + georef.step[1] * i as f64];
+            let (lat, lon) = source.to_wgs84(src)?;
+            let truth = ecef(lat, lon, 0.0);
+            let p = [j as f64 * spacing_m[0], -(i as f64) * spacing_m[1], 0.0];
+            let t = transform;
+            let drawn = [0, 1, 2].map(|r| t[r] * p[0] + t[4 + r] * p[1] + t[8 + r] * p[2] + t[12 + r]);
+            let d = [0, 1, 2].map(|r| drawn[r] - truth[r]);
+            let up = EnuFrame::new(lat, lon).axes[2];
+            let vertical = d[0] * up[0] + d[1] * up[1] + d[2] * up[2];
+            let across = [0, 1, 2].map(|r| d[r] - vertical * up[r]);
+            let horizontal = across.iter().map(|a| a * a).sum::<f64>().sqrt();
+            if vertical.abs() > worst.vertical_m.abs() {
+                worst.vertical_m = vertical;
+            }
+            worst.horizontal_m = worst.horizontal_m.max(horizontal);
+            let total = distance(drawn, truth);
+            if total > farthest {
+                (farthest, worst.at) = (total, [i, j]);
+            }
+        }
+        Some(worst)
+    }
+
+    /// The larger of the two distances, metres.
+    pub fn worst_m(&self) -> f64 {
+        self.vertical_m.abs().max(self.horizontal_m)
+    }
+}
+
+/// The samples a flat frame is measured at: every corner, up to 257 along
+/// each border, and a 17 × 17 lattice inside (the error is smooth and
+/// largest at the border; the lattice catches a projection's own bends).
+fn probe_samples(width: usize, height: usize) -> Vec<(usize, usize)> {
+    let along = |n: usize, k: usize| -> Vec<usize> {
+        let mut v: Vec<usize> = (0..=k).map(|t| t * (n - 1) / k).collect();
+        v.dedup();
+        v
+    };
+    let (rows, cols) = (along(height, 256.min(height - 1)), along(width, 256.min(width - 1)));
+    let mut out: Vec<(usize, usize)> = Vec::new();
+    for &j in &cols {
+        out.push((0, j));
+        out.push((height - 1, j));
+    }
+    for &i in &rows {
+        out.push((i, 0));
+        out.push((i, width - 1));
+    }
+    for i in along(height, 16.min(height - 1)) {
+        for j in along(width, 16.min(width - 1)) {
+            out.push((i, j));
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// Why a georeferenced grid gets no root transform.
@@ -177,7 +271,7 @@ impl Placement {
                 source.name, source.definition, PROJ4RS_VERSION
             )
         };
-        Ok(Placement {
+        let mut placement = Placement {
             lon_deg: lon,
             lat_deg: lat,
             height_m: 0.0,
@@ -189,7 +283,10 @@ impl Placement {
                 "{how}; the tileset stays planar (ground d m from the centre floats d^2/2R above the \
                  ellipsoid), {NO_GEOID}"
             ),
-        })
+            flat_frame_error: None,
+        };
+        placement.flat_frame_error = FlatFrameError::measure(georef, width, height, spacing_m, &placement.transform());
+        Ok(placement)
     }
 
     /// The placement of a grid whose heights had the undulation of the

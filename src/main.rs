@@ -298,6 +298,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     if let Some(warning) = r.over_delta_warning() {
                         eprintln!("{warning}");
                     }
+                    if let Some(warning) = r.flat_frame_warning() {
+                        eprintln!("{warning}");
+                    }
                     if let Some(warning) = r.not_placed_warning() {
                         eprintln!("{warning}");
                     }

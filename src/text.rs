@@ -44,6 +44,14 @@ impl fmt::Display for VerifyReport {
                 t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
             )?;
         }
+        if let Some(e) = &r.flat_frame_error {
+            writeln!(
+                f,
+                "on the globe: the planar tileset is drawn up to {:.3} m along the ellipsoid normal and {:.3} m \
+                 across it from its samples' places (row {}, column {})",
+                e.vertical_m, e.horizontal_m, e.at[0], e.at[1]
+            )?;
+        }
         for s in &r.slivers {
             writeln!(f, "promise 8 not kept: {s}")?;
         }

@@ -401,3 +401,84 @@ fn a_crs_the_library_does_not_know_builds_unplaced_and_says_so() {
     assert_eq!(ts["extras"]["terrachunk"]["spacing_m"], serde_json::json!([25.0, 25.0]));
     verified(&out);
 }
+
+/// The distance, along the WGS 84 normal at `(lat, lon)` and across it,
+/// from the ellipsoid point there to `drawn`.
+fn off_the_ellipsoid(drawn: [f64; 3], lat: f64, lon: f64) -> (f64, f64) {
+    let truth = ecef_on(WGS84, lat, lon, 0.0);
+    let d = [0, 1, 2].map(|r| drawn[r] - truth[r]);
+    let (sp, cp) = lat.to_radians().sin_cos();
+    let (sl, cl) = lon.to_radians().sin_cos();
+    let up = [cp * cl, cp * sl, sp];
+    let along = d[0] * up[0] + d[1] * up[1] + d[2] * up[2];
+    (along, (distance(d, [0.0; 3]).powi(2) - along * along).max(0.0).sqrt())
+}
+
+/// A geographic grid 2° × 2° (220 km across) at 40° N, flat at 0 m.
+fn wide_geographic_asc(dir: &Path) -> std::path::PathBuf {
+    let dem = dir.join("wide.asc");
+    let mut text = "ncols 41\nnrows 41\nxllcorner -106.025\nyllcorner 38.975\ncellsize 0.05\n".to_string();
+    text += &"0 ".repeat(41 * 41);
+    std::fs::write(&dem, text).unwrap();
+    std::fs::write(dem.with_extension("prj"), "+proj=longlat +datum=WGS84 +no_defs").unwrap();
+    dem
+}
+
+#[test]
+fn the_flat_frames_distance_from_the_ellipsoid_is_stated_measured_and_warned_about() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = wide_geographic_asc(tmp.path());
+    let out = tmp.path().join("out");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", "none"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ts = tileset(&out);
+    let stated = &ts["extras"]["terrachunk"]["placement"]["flat_frame_error"];
+    // Independently: the four corners as a client draws them, against
+    // their longitude and latitude on the ellipsoid.
+    let mut worst = (0.0f64, 0.0f64);
+    for (i, j) in [(0.0, 0.0), (0.0, 40.0), (40.0, 0.0), (40.0, 40.0)] {
+        let (lat, lon) = (41.0 - 0.05 * i, -106.0 + 0.05 * j);
+        let (up, across) = off_the_ellipsoid(apply(&ts, sample(&ts, i, j)), lat, lon);
+        worst = (worst.0.max(up), worst.1.max(across));
+    }
+    // d²/2R at the corners, 140 km from the centre: about 1.5 km up.
+    assert!((1450.0..1650.0).contains(&worst.0), "{worst:?}");
+    let v = stated["vertical_m"].as_f64().unwrap();
+    let h = stated["horizontal_m"].as_f64().unwrap();
+    assert!((v - worst.0).abs() < 1e-3 * worst.0, "stated {v} m up, the corners are {} m", worst.0);
+    assert!(h >= worst.1 - 1e-3, "stated {h} m across, a corner is {} m", worst.1);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stdout.contains("on the globe: planar, drawn up to"), "{stdout}");
+    assert!(stderr.contains("warning: the tileset is planar") && stderr.contains("more than the leaf δ"), "{stderr}");
+
+    // verify measures it again from the transform, and prints it.
+    let r = verified(&out);
+    let measured = r.flat_frame_error.expect("a placed tileset");
+    assert!((measured.vertical_m - v).abs() < 1e-6);
+    // Extras that state less than the transform does are a failure.
+    let mut edited = ts.clone();
+    edited["extras"]["terrachunk"]["placement"]["flat_frame_error"]["vertical_m"] = 1.0.into();
+    std::fs::write(out.join("tileset.json"), serde_json::to_vec(&edited).unwrap()).unwrap();
+    let r = terrachunk::verify::verify(&out, Some(&[dem])).unwrap();
+    assert!(r.failures.iter().any(|f| f.contains("flat_frame_error")), "{:?}", r.failures);
+}
+
+#[test]
+fn a_small_grid_is_placed_within_its_leaf_error_without_a_warning() {
+    // Mount St Helens, 9.8 × 14 km: 5.7 m up at the corners (d²/2R),
+    // within a 10 m leaf δ.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let dem = fixture("mount_st_helens_30m.tif");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--max-error", "10"]);
+    assert!(o.status.success());
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("warning"), "{}", String::from_utf8_lossy(&o.stderr));
+    let ts = tileset(&out);
+    let e = &ts["extras"]["terrachunk"]["placement"]["flat_frame_error"];
+    let v = e["vertical_m"].as_f64().unwrap();
+    assert!((5.6..5.9).contains(&v), "{e}");
+    // NAD27 UTM: the frame undoes convergence and scale, so across the
+    // normal only centimetres remain.
+    assert!(e["horizontal_m"].as_f64().unwrap() < 0.1, "{e}");
+}

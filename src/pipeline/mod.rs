@@ -205,6 +205,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     extras.geoid = geoid_file(opts)?;
     extras.texture = texture;
     report.not_placed = not_placed(&hf);
+    report.flat_frame_error = extras.placement.as_ref().and_then(|p| p.flat_frame_error.clone());
     let doc = tileset_json(&tree, &records, &extras);
     // Compact: a client reads the whole index before it draws anything,
     // and indentation was four fifths of it. `jq . tileset.json` reads it.

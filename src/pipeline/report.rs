@@ -116,6 +116,9 @@ pub struct Report {
     /// named, not known, or not one the projection library can invert);
     /// absent when it was placed or the file has no georeference at all.
     pub not_placed: Option<String>,
+    /// How far the root transform draws the planar grid from its place on
+    /// the ellipsoid (placed grids only).
+    pub flat_frame_error: Option<crate::geodesy::FlatFrameError>,
 }
 
 /// A chunk whose error as written is beyond its δ.
@@ -285,6 +288,23 @@ impl Report {
 }
 
 impl Report {
+    /// The warning for a placed grid whose planar frame puts some sample
+    /// farther from its place on the ellipsoid than the leaf δ.
+    pub fn flat_frame_warning(&self) -> Option<String> {
+        let e = self.flat_frame_error.as_ref()?;
+        let leaf = self.levels.last()?.delta_m;
+        (e.worst_m() > leaf).then(|| {
+            format!(
+                "warning: the tileset is planar, and a 3D Tiles client draws it up to {:.1} m off the ellipsoid \
+                 (row {}, column {}), more than the leaf δ {leaf} m: a grid this large needs a curved frame, \
+                 which terrachunk does not write (README, Limitations)",
+                e.worst_m(),
+                e.at[0],
+                e.at[1]
+            )
+        })
+    }
+
     /// The warning for a georeferenced grid the tileset does not place on
     /// the globe, if it is one.
     pub fn not_placed_warning(&self) -> Option<String> {
@@ -353,6 +373,14 @@ impl std::fmt::Display for Summary<'_> {
                     )?;
                 }
             }
+        }
+        if let Some(e) = &r.flat_frame_error {
+            writeln!(
+                f,
+                "on the globe: planar, drawn up to {:.3} m along the ellipsoid normal and {:.3} m across it from \
+                 the samples' places",
+                e.vertical_m, e.horizontal_m
+            )?;
         }
         let s = &r.seconds;
         writeln!(f, "{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display())?;

@@ -114,6 +114,10 @@ pub struct VerifyReport {
     pub slivers: Vec<String>,
     /// Texture measurements (absent for an untextured tileset).
     pub texture: Option<TextureCheck>,
+    /// How far the root transform draws the planar grid from its place on
+    /// the ellipsoid, measured from the transform in the file (absent when
+    /// the tileset has none).
+    pub flat_frame_error: Option<crate::geodesy::FlatFrameError>,
 }
 
 /// What verify measured of the texture tiles.
@@ -206,7 +210,7 @@ pub fn verify_with_progress(
         ));
         return Ok(report);
     }
-    check_transform(&ts, &hf, &mut report.failures);
+    report.flat_frame_error = check_transform(&ts, &hf, &mut report.failures);
 
     // Down the tree, each chunk read once and checked against its parent
     // (error, coverage, morph, texture), then dropped but for what its

@@ -9,7 +9,7 @@ use serde_json::Value;
 
 use super::name;
 use super::read::ChunkFile;
-use crate::geodesy::Placement;
+use crate::geodesy::{FlatFrameError, Placement};
 use crate::heightfield::Heightfield;
 use crate::output::tileset::{TileExtras, TilesetExtras, tile_uri};
 use crate::quadtree::{ChunkKey, midpoint};
@@ -244,15 +244,22 @@ pub(super) fn content_in_box(c: &ChunkFile, bbox: &Obb) -> Option<String> {
 /// Whether the root tile's transform is the one the DEM's georeference
 /// gives (none where it gives none), entry by entry within the rounding
 /// of the arithmetic that makes it.
-pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<String>) {
+/// Checks the root transform against the one the DEM's georeference
+/// gives, and measures how far it draws the planar grid from the
+/// ellipsoid: the extras must not state less.
+pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<String>) -> Option<FlatFrameError> {
     let want = Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| p.transform());
     let got = &ts["root"]["transform"];
     match (want, got.as_array()) {
-        (None, None) => {}
+        (None, None) => None,
         (None, Some(_)) => {
-            failures.push("the root tile carries a transform, but the DEM's georeference places it nowhere".into())
+            failures.push("the root tile carries a transform, but the DEM's georeference places it nowhere".into());
+            None
         }
-        (Some(_), None) => failures.push("the root tile has no transform, but the DEM's georeference gives one".into()),
+        (Some(_), None) => {
+            failures.push("the root tile has no transform, but the DEM's georeference gives one".into());
+            None
+        }
         (Some(w), Some(g)) => {
             let g: Vec<f64> = g.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect();
             let close = g.len() == 16 && w.iter().zip(&g).all(|(w, g)| (w - g).abs() <= 1e-9 * w.abs().max(1.0));
@@ -260,7 +267,21 @@ pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<S
                 failures.push(format!(
                     "the root tile's transform {g:?} is not the one the DEM's georeference gives, {w:?}"
                 ));
+                return None;
             }
+            let g: [f64; 16] = g.try_into().expect("16 values");
+            let measured = FlatFrameError::measure(&hf.georef, hf.width, hf.height, hf.spacing_m, &g)?;
+            let stated = &ts["extras"]["terrachunk"]["placement"]["flat_frame_error"];
+            let stated_m = [&stated["vertical_m"], &stated["horizontal_m"]].map(|v| v.as_f64().map(f64::abs));
+            let understated = |stated: Option<f64>, m: f64| stated.is_none_or(|s| s + 1e-3 + 1e-9 * m < m);
+            if understated(stated_m[0], measured.vertical_m.abs()) || understated(stated_m[1], measured.horizontal_m) {
+                failures.push(format!(
+                    "extras.terrachunk.placement.flat_frame_error states {stated}, but the transform draws a sample \
+                     {:.3} m along the ellipsoid normal and {:.3} m across it from its place",
+                    measured.vertical_m, measured.horizontal_m
+                ));
+            }
+            Some(measured)
         }
     }
 }
