@@ -482,3 +482,67 @@ fn a_small_grid_is_placed_within_its_leaf_error_without_a_warning() {
     // normal only centimetres remain.
     assert!(e["horizontal_m"].as_f64().unwrap() < 0.1, "{e}");
 }
+
+/// A geographic ASCII grid of `cols` × `rows` samples `cell` degrees
+/// apart whose south-west sample centre is at (`west`, `south`): gentle
+/// hills around 100 m.
+fn geographic_asc(
+    dir: &Path,
+    name: &str,
+    (cols, rows): (usize, usize),
+    (west, south): (f64, f64),
+    cell: f64,
+) -> std::path::PathBuf {
+    let dem = dir.join(format!("{name}.asc"));
+    let mut text = format!(
+        "ncols {cols}\nnrows {rows}\nxllcorner {}\nyllcorner {}\ncellsize {cell}\n",
+        west - cell / 2.0,
+        south - cell / 2.0
+    );
+    for i in 0..rows {
+        let row: Vec<String> = (0..cols)
+            .map(|j| format!("{:.2}", 100.0 + 50.0 * (i as f64 * 0.1).sin() * (j as f64 * 0.13).cos()))
+            .collect();
+        text += &row.join(" ");
+        text += "\n";
+    }
+    std::fs::write(&dem, text).unwrap();
+    std::fs::write(dem.with_extension("prj"), "+proj=longlat +datum=WGS84 +no_defs").unwrap();
+    dem
+}
+
+#[test]
+fn a_grid_across_the_antimeridian_is_placed_at_180_degrees_and_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 179.9° E to 180.1° E (written 180.1, past the antimeridian), 17° S: Fiji.
+    let dem = geographic_asc(tmp.path(), "fiji", (81, 61), (179.9, -17.075), 0.0025);
+    let (_t, out, _) = build_ok(&dem, 1.0);
+    let ts = tileset(&out);
+    let p = &ts["extras"]["terrachunk"]["placement"];
+    let lon = p["lon_deg"].as_f64().unwrap();
+    assert!((lon.rem_euclid(360.0) - 180.0).abs() < 1e-9, "{p}");
+    assert!((p["lat_deg"].as_f64().unwrap() + 17.0).abs() < 1e-9, "{p}");
+    // The corners against their own longitudes, east of the line too.
+    for (i, j) in [(0.0, 0.0), (60.0, 80.0)] {
+        let (lat, lon) = (-17.0 + 0.075 - 0.0025 * i, 179.9 + 0.0025 * j);
+        let (up, across) = off_the_ellipsoid(apply(&ts, sample(&ts, i, j)), lat, lon);
+        // 11 km from the centre: d²/2R ≈ 10 m up; the equirectangular
+        // approximation a few metres across.
+        assert!(up.abs() < 20.0 && across < 10.0, "corner ({i}, {j}): {up} m up, {across} m across");
+    }
+    crate::common::verified_against(&out, &[dem]);
+}
+
+#[test]
+fn a_grid_touching_the_pole_builds_places_and_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Its north row is the pole itself: every sample there is one point.
+    let dem = geographic_asc(tmp.path(), "pole", (81, 61), (10.0, 90.0 - 0.15), 0.0025);
+    let (_t, out, _) = build_ok(&dem, 1.0);
+    let ts = tileset(&out);
+    let p = &ts["extras"]["terrachunk"]["placement"];
+    assert!((p["lat_deg"].as_f64().unwrap() - 89.925).abs() < 1e-9, "{p}");
+    let e = &p["flat_frame_error"];
+    assert!(e["vertical_m"].as_f64().unwrap().is_finite() && e["horizontal_m"].as_f64().unwrap() > 0.0, "{e}");
+    crate::common::verified_against(&out, &[dem]);
+}
