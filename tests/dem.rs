@@ -243,6 +243,25 @@ fn geotiff_deflate_predictor_california_crop() {
     assert_close(hf.spacing_m[1], 92.5, 0.2);
 }
 
+/// The two Sierra 3 × 3 crops the greedy TIN's Sierra cases build from:
+/// 451 × 451 blocks of the mosaic (39…36° N, 119…116° W, 3″) in place,
+/// so their spacing in metres is the mosaic's at their own latitude.
+#[test]
+fn geotiff_sierra_crops() {
+    for (name, c0, r0, (lo, hi)) in [
+        ("sierra_n38w118_crop_i16.tif", 1350, 450, (1490.0, 2454.0)),
+        ("sierra_n37w117_crop_i16.tif", 2700, 2250, (824.0, 2260.0)),
+    ] {
+        let hf = ok(&fixture(name));
+        assert_eq!((hf.width, hf.height), (451, 451), "{name}");
+        assert_eq!(stats(&hf), (lo, hi, 0), "{name}");
+        assert_eq!(hf.georef.crs, Crs::Geographic { epsg: Some(4326) });
+        assert_close(hf.georef.origin[0], -119.0 + f64::from(c0) / 1200.0, 1e-9);
+        assert_close(hf.georef.origin[1], 39.0 - f64::from(r0) / 1200.0, 1e-9);
+        assert_close(hf.spacing_m[1], 92.5, 0.2);
+    }
+}
+
 #[test]
 fn hgt_single_tile() {
     let hf = ok(&fixture("hgt_mosaic/N01E000.hgt"));
@@ -998,29 +1017,38 @@ fn regenerate_fixtures() {
 
     // DEFLATE + horizontal predictor GeoTIFF: Death Valley from California.
     {
-        use tiff::encoder::{Compression, DeflateLevel, Predictor, TiffEncoder, colortype};
-        use tiff::tags::Tag;
         let cal = ok(&dem.join("california_srtm3_8401x4801.tif"));
         let (r0, c0) = (4500, 5050);
         let data: Vec<i16> = crop(&cal, r0, c0, 64, 48).iter().map(|&h| h as i16).collect();
         let step = 1.0 / 1200.0;
         // PixelIsArea: the tie point is the corner of sample (0, 0).
-        let x = -121.0 + c0 as f64 * step - step / 2.0;
-        let y = 40.0 - r0 as f64 * step + step / 2.0;
-        let p = out.join("california_crop_deflate.tif");
-        let mut enc = TiffEncoder::new(std::fs::File::create(&p).unwrap())
-            .unwrap()
-            .with_compression(Compression::Deflate(DeflateLevel::Best))
-            .with_predictor(Predictor::Horizontal);
-        let mut img = enc.new_image::<colortype::GrayI16>(64, 48).unwrap();
-        img.rows_per_strip(16).unwrap();
-        let e = img.encoder();
-        e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
-        e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, x, y, 0.0][..]).unwrap();
-        let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326];
-        e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
-        e.write_tag(Tag::GdalNodata, "-32768").unwrap();
-        img.write_data(&data).unwrap();
+        let corner = [-121.0 + c0 as f64 * step - step / 2.0, 40.0 - r0 as f64 * step + step / 2.0];
+        write_deflate_geographic_i16(&out.join("california_crop_deflate.tif"), [64, 48], corner, step, 16, &data);
+    }
+
+    // Sierra 3 × 3 (3601 × 3601, 39…36° N, 119…116° W; J. de Ferranti's
+    // void-filled SRTM3, public domain, attribution requested): the
+    // footprints of the level-3 chunks above the two chunks the greedy TIN
+    // once got wrong (`hard_cases`), 451 × 451 samples with their shared
+    // border rows and columns: chunk 3/3/1 of the 113-cell-leaf tree at
+    // 5 m over 5/14/7 (in tile N38W118), and chunk 3/6/5 of the
+    // 16-cell-leaf tree over 6/52/44 (across N37W117 and N36W117).
+    {
+        let sierra = ok(&dem.join("srtm3_sierra_3x3"));
+        let step = 1.0 / 1200.0;
+        for (name, c0, r0) in [("sierra_n38w118_crop_i16.tif", 1350, 450), ("sierra_n37w117_crop_i16.tif", 2700, 2250)]
+        {
+            let data: Vec<i16> = crop(&sierra, r0, c0, 451, 451).iter().map(|&h| h as i16).collect();
+            let corner = [-119.0 + c0 as f64 * step - step / 2.0, 39.0 - r0 as f64 * step + step / 2.0];
+            write_deflate_geographic_i16(&out.join(name), [451, 451], corner, step, 16, &data);
+            // The crop is the mosaic's block, sample for sample, in place.
+            let back = ok(&out.join(name));
+            assert_eq!(back.heights, crop(&sierra, r0, c0, 451, 451), "{name}");
+            for a in 0..2 {
+                let at = [c0, r0][a] as f64 * sierra.georef.step[a];
+                assert!((back.georef.origin[a] - (sierra.georef.origin[a] + at)).abs() < 1e-9, "{name}");
+            }
+        }
     }
 
     // .hgt mosaic: a 21 × 21 block of N43E007 (the Var estuary at Nice) around its
@@ -1102,6 +1130,8 @@ fn regenerate_fixtures() {
     // Print what the tests pin, for a human to compare.
     for name in [
         "california_crop_deflate.tif",
+        "sierra_n38w118_crop_i16.tif",
+        "sierra_n37w117_crop_i16.tif",
         "hgt_mosaic",
         "hgt_mosaic/N01E000.hgt",
         "kilauea_crop_i16.bt",
@@ -1113,4 +1143,33 @@ fn regenerate_fixtures() {
         let zeros = hf.heights.iter().filter(|&&h| h == 0.0).count();
         println!("{name}: {} × {} {:?} zeros {zeros}", hf.width, hf.height, stats(&hf));
     }
+}
+
+/// An int16 GeoTIFF on a WGS 84 geographic grid, DEFLATE with the
+/// horizontal predictor in strips of `rows_per_strip` (the layout real
+/// GeoTIFFs most often use): `corner` is the north-west corner of sample
+/// (0, 0) in degrees (PixelIsArea), `step` the sample spacing in degrees.
+fn write_deflate_geographic_i16(
+    path: &Path,
+    [w, h]: [u32; 2],
+    corner: [f64; 2],
+    step: f64,
+    rows_per_strip: u32,
+    data: &[i16],
+) {
+    use tiff::encoder::{Compression, DeflateLevel, Predictor, TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap())
+        .unwrap()
+        .with_compression(Compression::Deflate(DeflateLevel::Best))
+        .with_predictor(Predictor::Horizontal);
+    let mut img = enc.new_image::<colortype::GrayI16>(w, h).unwrap();
+    img.rows_per_strip(rows_per_strip).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, corner[0], corner[1], 0.0][..]).unwrap();
+    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326];
+    e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
+    e.write_tag(Tag::GdalNodata, "-32768").unwrap();
+    img.write_data(data).unwrap();
 }

@@ -29,6 +29,7 @@
 //! | ETOPO2 France–Italy at 1 m: a line sample exactly δ off beside a cut corner | verifies (was refused as a mesher bug) |
 //! | Mount St Helens `quantize` at 5 m, 32-cell leaves: a sample beside a parent edge | verifies, no triangle turned over |
 //! | Sierra 3 × 3 `quantize` at 5 m, 16-cell leaves (`../shared`, ignored): a fan of nearly parallel parent edges | verifies, no triangle turned over |
+//! | Sierra 3 × 3 crops around two chunks the greedy TIN once got wrong (SRTM3, 451 × 451): at 5 m; `quantize` at 5 m, 16-cell leaves | every level within δ; verifies, no triangle turned over |
 //! | flat sea at 0 m with islands and a straight coast; tidal flats at 0–3 m beside hills; a 38° N geographic coast (positions tens of km from the chunk origin); whole-metre terraces on a gentle slope — each in every `--compress` mode | verifies; promise 8: ≤ 0.1 % of each level's triangles with aspect over 100, none over 10³ |
 //! | every fixture DEM at 0.5, 1 and 5 m in every `--compress` mode (`slow_`, `scripts/test --slow`) | verifies; promise 8 at every level; a relief the 16-bit lattice cannot hold is refused |
 //!
@@ -626,29 +627,52 @@ fn max_error_below_the_quantisation_step_and_above_the_relief() {
 
 // ------------------------------------------------- mesher bugs, now pinned
 
-/// Found with the spade-based mesher: a sample on a constraint edge with an
-/// inexact (split-point) end was inserted by removing and re-adding the
-/// constraint, which re-triangulated faces that were never rescanned, and
-/// `srtm3_sierra_3x3` at 5 m left a sample 7.67 m off in chunk 6/14/7 against
-/// δ 5 m. The half-edge TIN splits such an edge in place (every rewritten
-/// triangle is rescanned), and the pipeline refuses any chunk beyond its δ
-/// (`BuildError::MissedDelta`). Needs `../shared/dem`; minutes in a dev
-/// build, so run with `--release -- --ignored`.
-/// Builds `../shared/dem/srtm3_sierra_3x3` (nine SRTM3 tiles) with `cfg`;
-/// the folder, the output and the report.
-fn build_sierra_3x3(cfg: Config) -> (tempfile::TempDir, PathBuf, Report) {
+/// `../shared/dem/srtm3_sierra_3x3`, nine SRTM3 tiles, where the two
+/// Sierra cases below were found.
+fn sierra_3x3() -> PathBuf {
     let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/dem/srtm3_sierra_3x3");
     assert!(dem.is_dir(), "needs {}", dem.display());
+    dem
+}
+
+/// Builds `dem` with `cfg`; the folder, the output and the report.
+fn build_sierra(dem: &Path, cfg: Config) -> (tempfile::TempDir, PathBuf, Report) {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
-    let report = build(&with_config(&dem, &out, cfg)).unwrap_or_else(|e| panic!("{e}"));
+    let report = build(&with_config(dem, &out, cfg)).unwrap_or_else(|e| panic!("{e}"));
     (tmp, out, report)
 }
 
+/// Found with the spade-based mesher: a sample on a constraint edge with an
+/// inexact (split-point) end was inserted by removing and re-adding the
+/// constraint, which re-triangulated faces that were never rescanned, and
+/// `srtm3_sierra_3x3` at 5 m left a sample 7.67 m off in chunk 6/14/7 (a
+/// refine level then, over today's 5/14/7) against δ 5 m. The half-edge
+/// TIN splits such an edge in place (every rewritten triangle is
+/// rescanned), and the pipeline refuses any chunk beyond its δ
+/// (`BuildError::MissedDelta`).
 #[test]
-#[ignore = "needs ../shared/dem; run in release"]
+#[ignore = "needs ../shared/dem"]
 fn mesher_rescans_faces_made_by_splitting_an_inexact_constraint() {
-    let (_tmp, _, report) = build_sierra_3x3(tin(Config { max_error_m: 5.0, ..Config::default() }));
+    let (_tmp, _, report) = build_sierra(&sierra_3x3(), tin(Config { max_error_m: 5.0, ..Config::default() }));
+    for l in &report.levels {
+        assert!(l.max_error_m <= l.delta_m, "level {}: {} m > δ {} m", l.level, l.max_error_m, l.delta_m);
+    }
+}
+
+/// The region of [`mesher_rescans_faces_made_by_splitting_an_inexact_constraint`]
+/// in every run: the fixture is the footprint of 5/14/7's level-3 ancestor
+/// 3/3/1 (451 × 451 samples), built with the 113-cell leaves the whole
+/// mosaic's estimate picks (on the crop alone it picks 225), so its tree
+/// is that ancestor's subtree with the same δ per level. Its top chunk
+/// starts from its own corners, not from the levels above, so its meshes
+/// are not the mosaic's.
+#[test]
+fn a_sierra_crop_meshed_by_the_greedy_tin_keeps_every_level_within_delta() {
+    let cfg = tin(config(5.0, 113));
+    let (_tmp, _, report) = build_sierra(&crate::common::fixture("sierra_n38w118_crop_i16.tif"), cfg);
+    let deltas: Vec<f64> = report.levels.iter().map(|l| l.delta_m).collect();
+    assert_eq!(deltas, [20.0, 10.0, 5.0], "the mosaic's levels 3 to 5");
     for l in &report.levels {
         assert!(l.max_error_m <= l.delta_m, "level {}: {} m > δ {} m", l.level, l.max_error_m, l.delta_m);
     }
@@ -843,12 +867,32 @@ fn a_quantized_build_turns_no_sliver_beside_a_parent_edge_over() {
 /// its parent a sample lay 2.7·10⁻⁵ cells from a free edge, in a fan of
 /// nearly parallel edges; the child's crossings of that fan, moved onto
 /// the lattice, could not all keep their side. The parent now flips such
-/// an edge onto the vertex (`mesh::decimate::unsliver`).
+/// an edge onto the vertex (`mesh::decimate::unsliver`, whose own test
+/// pins the flip in every run).
 #[test]
-#[ignore = "needs ../shared/dem; run in release"]
+#[ignore = "needs ../shared/dem"]
 fn a_fan_of_nearly_parallel_parent_edges_turns_no_child_triangle_over() {
-    use terrachunk::config::Compress;
-    let (_tmp, out, _) = build_sierra_3x3(tin(Config { compress: Compress::Quantize, ..config(5.0, 16) }));
+    let dem = sierra_3x3();
+    let (_tmp, out, _) = build_sierra(&dem, tin(Config { compress: Compress::Quantize, ..config(5.0, 16) }));
+    // The tileset names the tiles, which sit in the folder it was built from.
+    let mut tiles: Vec<PathBuf> = std::fs::read_dir(&dem).unwrap().map(|e| e.unwrap().path()).collect();
+    tiles.sort();
+    verified_against(&out, &tiles);
+}
+
+/// The region of [`a_fan_of_nearly_parallel_parent_edges_turns_no_child_triangle_over`]
+/// in every run: the fixture is the footprint of 6/52/44's level-3
+/// ancestor 3/6/5 (451 × 451 samples), whose tree is that ancestor's
+/// subtree with the same δ per level (6/52/44 is its 3/4/4). Its top chunk
+/// starts from its own corners, not from the levels above, so its meshes
+/// are not the mosaic's, and it does not hold the fan.
+#[test]
+fn a_quantized_sierra_crop_with_16_cell_leaves_turns_no_triangle_over() {
+    let cfg = tin(Config { compress: Compress::Quantize, ..config(5.0, 16) });
+    let (_tmp, out, report) = build_sierra(&crate::common::fixture("sierra_n37w117_crop_i16.tif"), cfg);
+    let deltas: Vec<f64> = report.levels.iter().map(|l| l.delta_m).collect();
+    assert_eq!(deltas, [160.0, 80.0, 40.0, 20.0, 10.0, 5.0], "the mosaic's levels 3 to 8");
+    assert!(out.join("tiles/3/4/4.glb").is_file());
     verified(&out);
 }
 

@@ -20,6 +20,9 @@
 
 use robust::{Coord, incircle, orient2d};
 
+mod sanity;
+pub use sanity::Broken;
+
 /// `robust::incircle`'s sign, computed directly where that is exact: on
 /// whole-number coordinates within 4 096 of `d` every product and sum below
 /// stays under 2^52. Grid samples are such points, and four corners of a
@@ -299,7 +302,7 @@ impl Tin {
         if start == NONE {
             return None;
         }
-        // Clockwise around `a` until the border, then counter-clockwise.
+        // Counter-clockwise around `a` until the border, then clockwise.
         let mut e = start;
         loop {
             if self.tv[next(e) as usize] == b {
@@ -720,22 +723,10 @@ mod tests {
         Tin::from_soup(pts, &[[0, 1, 2], [0, 2, 3]], &[[false; 3]; 2])
     }
 
+    #[track_caller]
     fn check(tin: &Tin) {
-        for t in 0..tin.num_triangles() as u32 {
-            let [a, b, c] = tin.triangle(t);
-            assert!(orient2d(tin.coord(a), tin.coord(b), tin.coord(c)) > 0.0, "triangle {t} not counter-clockwise");
-            for k in 0..3 {
-                let e = 3 * t + k;
-                let f = tin.twin[e as usize];
-                if f != NONE {
-                    assert_eq!(tin.twin[f as usize], e);
-                    assert_eq!(tin.ends(e), (tin.ends(f).1, tin.ends(f).0));
-                    assert_eq!(tin.fixed[e as usize], tin.fixed[f as usize]);
-                }
-            }
-        }
-        for (k, &e) in tin.out.iter().enumerate() {
-            assert_eq!(tin.tv[e as usize], k as u32, "vertex {k} lost its out edge");
+        if let Err(broken) = tin.sanity_check() {
+            panic!("{broken}");
         }
     }
 
@@ -757,6 +748,76 @@ mod tests {
         assert!(tin.find_edge(1, m).is_some() && tin.find_edge(m, 2).is_some() && tin.find_edge(1, 2).is_none());
         assert_eq!(tin.locate(Coord { x: 4.0, y: 2.0 }), Position::Vertex(m));
         assert_eq!(tin.locate(Coord { x: 5.0, y: 2.0 }), Position::Outside);
+    }
+
+    /// Random whole-number points (some on edges, some on the fixed
+    /// diagonal, some repeated) inserted into a square, then every free
+    /// edge whose two triangles make a convex quadrilateral flipped, then
+    /// free vertices collapsed onto a neighbour where that keeps every
+    /// triangle counter-clockwise: the structure is sound after each step.
+    #[test]
+    fn every_operation_leaves_a_sound_structure() {
+        let mut draw = crate::test_rng::xorshift(0x2545_f491_4f6c_dd1d);
+        let pts = vec![v(0.0, 0.0), v(32.0, 0.0), v(32.0, 32.0), v(0.0, 32.0)];
+        let mut tin = Tin::from_soup(pts, &[[0, 1, 2], [0, 2, 3]], &[[false, false, true], [true, false, false]]);
+        check(&tin);
+        let (mut faces, mut edges) = (0, 0);
+        for _ in 0..300 {
+            let (x, z) = ((draw() % 33) as f64, (draw() % 33) as f64);
+            let n = tin.add_vertex(v(x, z));
+            match tin.locate_from(0, Coord { x, y: z }) {
+                Position::Face(t) => {
+                    tin.split_triangle(t, n);
+                    faces += 1;
+                }
+                Position::Edge(e) => {
+                    tin.split_edge(e, n);
+                    edges += 1;
+                }
+                // Already a vertex: the new one stays unconnected.
+                Position::Vertex(_) => {}
+                Position::Outside => panic!("({x}, {z}) is inside"),
+            }
+            check(&tin);
+        }
+        assert!(faces > 100 && edges > 10, "{faces} points in faces, {edges} on edges");
+        let pos = |tin: &Tin, v: u32| tin.coord(v);
+        let mut flips = 0;
+        for e in 0..tin.tv.len() as u32 {
+            let Some(f) = tin.twin_of(e) else { continue };
+            if tin.is_fixed(e) {
+                continue;
+            }
+            let (a, b) = tin.ends(e);
+            let (c, d) = (tin.apex(e), tin.apex(f));
+            let convex = orient2d(pos(&tin, c), pos(&tin, a), pos(&tin, d)) > 0.0
+                && orient2d(pos(&tin, d), pos(&tin, b), pos(&tin, c)) > 0.0;
+            if convex {
+                tin.flip(e);
+                check(&tin);
+                flips += 1;
+            }
+        }
+        assert!(flips > 100, "{flips} flips");
+        let (mut star, mut changed, mut collapses) = (Vec::new(), Vec::new(), 0);
+        for w in 4..tin.pts.len() as u32 {
+            if !tin.free_star(w, &mut star) {
+                continue;
+            }
+            let keeps = |u: u32| {
+                star.iter().all(|&g| {
+                    let (_, x) = tin.ends(g);
+                    let y = tin.apex(g);
+                    x == u || y == u || orient2d(pos(&tin, u), pos(&tin, x), pos(&tin, y)) > 0.0
+                })
+            };
+            if let Some(&e) = star.iter().find(|&&e| keeps(tin.ends(e).1)) {
+                tin.collapse(e, &mut changed);
+                check(&tin);
+                collapses += 1;
+            }
+        }
+        assert!(collapses > 20, "{collapses} collapses");
     }
 
     #[test]
@@ -813,6 +874,7 @@ mod tests {
                     Position::Edge(e) => sub.split_edge(e, n),
                     other => panic!("{other:?}"),
                 }
+                check(&sub);
             }
             let id: Vec<u32> =
                 whole.into_iter().chain((first_new..first_new + inner.len()).map(|v| v as u32)).collect();
@@ -831,6 +893,7 @@ mod tests {
             }
         }
         let soup = Tin::from_soup(pts, &tris, &fixed);
+        check(&joined);
         assert_eq!(joined.tv, soup.tv);
         assert_eq!(joined.twin, soup.twin);
         assert_eq!(joined.fixed, soup.fixed);
@@ -865,10 +928,12 @@ mod tests {
             &tris,
             &[[true, false, false], [true, false, true], [true, false, true], [false, false, true]],
         );
+        check(&tin);
         let p = Coord { x: 2.0, y: 2.0 };
         let Position::Edge(e) = tin.locate_from(0, p) else { panic!("(2, 2) lies on the spoke A–X") };
         let m = tin.add_vertex(v(p.x, p.y));
         tin.split_edge(e, m);
+        check(&tin);
         let same = |p: u32, q: u32| tin.coord(p).x == tin.coord(q).x && tin.coord(p).y == tin.coord(q).y;
         let mut area = 0.0;
         for t in 0..tin.num_triangles() as u32 {

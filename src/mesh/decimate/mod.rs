@@ -188,9 +188,53 @@ enum Thinning {
 }
 
 fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Result<ChunkMesh, MeshError> {
-    let ((x0, x1), (z0, z1)) = spec.footprint;
+    // Debug builds, the tests' among them, hold every chunk's TIN to its
+    // invariants: the walk is linear in the TIN, a small share of meshing it.
+    build_checked(grid, spec, thinning, cfg!(debug_assertions))
+}
+
+/// [`build_chunk_thinning`], with the finished TIN held to [`assert_sound`]
+/// before it becomes the chunk's mesh where `check` says so.
+fn build_checked(grid: &Grid, spec: &ChunkSpec, thinning: Thinning, check: bool) -> Result<ChunkMesh, MeshError> {
     let window = Window::new(grid, spec.footprint);
-    let grid = &window;
+    let meshed = mesh_tin(&window, spec, thinning)?;
+    if check {
+        assert_sound(&meshed.tin, spec.footprint);
+    }
+    Ok(finish(&window, spec, &meshed.tin, &meshed.lines, &meshed.scans, meshed.relief))
+}
+
+/// A chunk's TIN after the five steps, with what [`finish`] needs to make
+/// its mesh: the lines' samples, the last scans and the footprint's relief
+/// and magnitude.
+struct Meshed {
+    tin: Tin,
+    lines: Lines,
+    scans: Vec<Scan>,
+    relief: (f64, f64),
+}
+
+/// Panics unless `tin` keeps every invariant of [`Tin::sanity_check`] and
+/// its border lies on the footprint's rectangle, the region a chunk's TIN
+/// covers (the check itself only knows the border is one convex loop).
+fn assert_sound(tin: &Tin, ((x0, x1), (z0, z1)): (Span, Span)) {
+    if let Err(broken) = tin.sanity_check() {
+        panic!("the TIN over {:?} is broken: {broken}", ((x0, x1), (z0, z1)));
+    }
+    let along = |c: f64, d: f64, side: u32| c == f64::from(side) && d == f64::from(side);
+    for e in (0..tin.num_triangles() as u32).filter(|&t| !tin.is_dead(t)).flat_map(|t| 3 * t..3 * t + 3) {
+        if tin.twin_of(e).is_none() {
+            let (a, b) = tin.ends(e);
+            let (p, q) = (tin.pts[a as usize], tin.pts[b as usize]);
+            let on = along(p.x, q.x, x0) || along(p.x, q.x, x1) || along(p.z, q.z, z0) || along(p.z, q.z, z1);
+            assert!(on, "border edge {a}–{b} of the TIN over {:?} is not on its rectangle", ((x0, x1), (z0, z1)));
+        }
+    }
+}
+
+/// Steps 1 to 5 over `grid`, a chunk's window.
+fn mesh_tin(grid: &Window, spec: &ChunkSpec, thinning: Thinning) -> Result<Meshed, MeshError> {
+    let ((x0, x1), (z0, z1)) = spec.footprint;
     let (relief, magnitude) = footprint_relief(grid, spec.footprint);
     let target =
         Targets::with_cut_share(spec.delta_m, relief, spec.cut_share).on_lattice(spec.lattice(), spec.height_step);
@@ -267,7 +311,7 @@ fn build_chunk_thinning(grid: &Grid, spec: &ChunkSpec, thinning: Thinning) -> Re
     if spec.lattice() > 1.0 {
         unsliver(&mut tin, grid, spec.footprint, &lines, target, 1.0 / spec.lattice());
     }
-    Ok(finish(grid, spec, &tin, &lines, &scans, (relief, magnitude)))
+    Ok(Meshed { tin, lines, scans, relief: (relief, magnitude) })
 }
 
 /// With quantized output, after step 5: a vertex within `within` (one

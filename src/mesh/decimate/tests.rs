@@ -1,4 +1,5 @@
 use super::*;
+use crate::mesh::tin::Broken;
 
 /// Rough ground: two ridges and a hashed roughness of a few metres.
 fn rough(w: usize, h: usize) -> Vec<f32> {
@@ -9,6 +10,22 @@ fn rough(w: usize, h: usize) -> Vec<f32> {
             (40.0 * (x / 9.0).sin() * (z / 13.0).cos() + 0.3 * x + 3.0 * hash) as f32
         })
         .collect()
+}
+
+/// [`build_chunk`], with the finished TIN held to [`Tin::sanity_check`]
+/// and its border to the footprint, whatever the build's profile: every
+/// mesh these tests make is checked.
+fn meshed(grid: &Grid, spec: &ChunkSpec) -> Result<ChunkMesh, MeshError> {
+    build_checked(grid, spec, Thinning::ByParts, true)
+}
+
+/// Panics with the first broken invariant of the TIN over `soup`.
+#[track_caller]
+fn assert_soup_sound(soup: &Soup) {
+    let tin = Tin::from_soup(soup.pts.clone(), &soup.tris, &soup.fixed);
+    if let Err(broken) = tin.sanity_check() {
+        panic!("{broken}");
+    }
 }
 
 /// Each triangle as its corners' coordinates, sorted: a mesh's
@@ -52,7 +69,7 @@ fn parts_filled_in_parallel_make_the_same_mesh_as_one_tin() {
     };
     let root = ChunkKey { level: 0, x: 0, y: 0 };
     let whole = ((0, 128), (0, 96));
-    let [one, parts] = [false, true].map(|split| build_chunk(&grid, &spec(root, whole, 2.0, None, split)).unwrap());
+    let [one, parts] = [false, true].map(|split| meshed(&grid, &spec(root, whole, 2.0, None, split)).unwrap());
     assert!(one.triangles.len() > 1000, "{} triangles", one.triangles.len());
     assert_eq!(triangle_set(&one), triangle_set(&parts));
     assert_eq!(one.vertices.len(), parts.vertices.len());
@@ -61,9 +78,9 @@ fn parts_filled_in_parallel_make_the_same_mesh_as_one_tin() {
     // either is the same mesh, and so is a child filled in parts.
     let child = ChunkKey { level: 1, x: 1, y: 0 };
     let quarter = ((64, 128), (0, 48));
-    let a = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&one), false)).unwrap();
-    let b = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&parts), false)).unwrap();
-    let c = build_chunk(&grid, &spec(child, quarter, 1.0, Some(&parts), true)).unwrap();
+    let a = meshed(&grid, &spec(child, quarter, 1.0, Some(&one), false)).unwrap();
+    let b = meshed(&grid, &spec(child, quarter, 1.0, Some(&parts), false)).unwrap();
+    let c = meshed(&grid, &spec(child, quarter, 1.0, Some(&parts), true)).unwrap();
     assert_eq!(triangle_set(&a), triangle_set(&b));
     assert_eq!(triangle_set(&a), triangle_set(&c));
     let held = |m: &ChunkMesh| m.scans.iter().filter(|s| s.is_some()).count();
@@ -72,9 +89,9 @@ fn parts_filled_in_parallel_make_the_same_mesh_as_one_tin() {
     let limit = one.vertices.len() - 1;
     for split in [false, true] {
         let tight = ChunkSpec { max_vertices: limit, ..spec(root, whole, 2.0, None, split) };
-        assert!(matches!(build_chunk(&grid, &tight), Err(MeshError::TooDense { .. })), "split {split}");
+        assert!(matches!(meshed(&grid, &tight), Err(MeshError::TooDense { .. })), "split {split}");
         let exact = ChunkSpec { max_vertices: limit + 1, ..spec(root, whole, 2.0, None, split) };
-        assert!(build_chunk(&grid, &exact).is_ok(), "split {split}");
+        assert!(meshed(&grid, &exact).is_ok(), "split {split}");
     }
 }
 
@@ -119,16 +136,16 @@ fn parts_thinned_in_parallel_make_the_collapses_of_the_joined_tin() {
     };
     let root = ChunkKey { level: 0, x: 0, y: 0 };
     let whole = ((0, 128), (0, 96));
-    let plain = build_chunk(&grid, &spec(root, whole, 2.0, None, false)).unwrap();
+    let plain = meshed(&grid, &spec(root, whole, 2.0, None, false)).unwrap();
     let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
-        .map(|how| build_chunk_thinning(&grid, &spec(root, whole, 2.0, None, true), how).unwrap());
+        .map(|how| build_checked(&grid, &spec(root, whole, 2.0, None, true), how, true).unwrap());
     let (n0, n1) = (plain.vertices.len(), by_parts.vertices.len());
     assert!(n1 * 100 < n0 * 97, "{n1} vertices thinned against {n0}");
     same_mesh(&joined, &by_parts);
     let child = ChunkKey { level: 1, x: 0, y: 1 };
     let quarter = ((0, 64), (48, 96));
     let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
-        .map(|how| build_chunk_thinning(&grid, &spec(child, quarter, 1.0, Some(&by_parts), true), how).unwrap());
+        .map(|how| build_checked(&grid, &spec(child, quarter, 1.0, Some(&by_parts), true), how, true).unwrap());
     same_mesh(&joined, &by_parts);
     assert!(by_parts.kept.iter().any(|&k| !k), "the child covers part of the void");
 }
@@ -164,11 +181,11 @@ fn a_lone_leaf_cut_into_parts_holds_only_samples_and_meets_delta() {
         ..ChunkSpec::unconstrained(whole, 2.0)
     };
     let on_samples = |m: &ChunkMesh| m.vertices.iter().all(|v| v.x.fract() == 0.0 && v.z.fract() == 0.0);
-    let children = build_chunk(&grid, &spec(DividingLines::Children, false)).unwrap();
+    let children = meshed(&grid, &spec(DividingLines::Children, false)).unwrap();
     assert!(!on_samples(&children), "the children's lines make a cut point here");
-    let free = build_chunk(&grid, &spec(DividingLines::None, false)).unwrap();
+    let free = meshed(&grid, &spec(DividingLines::None, false)).unwrap();
     let [joined, by_parts] = [Thinning::Joined, Thinning::ByParts]
-        .map(|how| build_chunk_thinning(&grid, &spec(DividingLines::Parts, true), how).unwrap());
+        .map(|how| build_checked(&grid, &spec(DividingLines::Parts, true), how, true).unwrap());
     same_mesh(&joined, &by_parts);
     assert!(on_samples(&by_parts), "a vertex off the sample grid");
     assert!(by_parts.max_error_m <= 2.0, "{} m", by_parts.max_error_m);
@@ -194,7 +211,7 @@ fn thinning_takes_out_vertices_and_keeps_every_sample_within_delta() {
     let root = ChunkKey { level: 0, x: 0, y: 0 };
     let whole = ((0, 128), (0, 96));
     let spec = lined;
-    let [plain, thinned] = [false, true].map(|thin| build_chunk(&grid, &spec(root, whole, 2.0, None, thin)).unwrap());
+    let [plain, thinned] = [false, true].map(|thin| meshed(&grid, &spec(root, whole, 2.0, None, thin)).unwrap());
     let (n0, n1) = (plain.vertices.len(), thinned.vertices.len());
     assert!(n1 * 100 < n0 * 97, "{n1} vertices thinned against {n0}");
     assert!(thinned.max_error_m <= 2.0, "{}", thinned.max_error_m);
@@ -248,7 +265,7 @@ fn thinning_takes_out_vertices_and_keeps_every_sample_within_delta() {
 
     let child = ChunkKey { level: 1, x: 1, y: 0 };
     let quarter = ((64, 128), (0, 48));
-    let c = build_chunk(
+    let c = meshed(
         &grid,
         &ChunkSpec { dividing_lines: DividingLines::None, ..spec(child, quarter, 1.0, Some(&thinned), true) },
     )
@@ -291,10 +308,10 @@ fn a_continued_tin_is_within_delta_with_a_fresh_tins_borders() {
         p.sort_unstable();
         p
     };
-    let mut chain = build_chunk(&grid, &ChunkSpec::unconstrained(whole, 8.0)).unwrap();
+    let mut chain = meshed(&grid, &ChunkSpec::unconstrained(whole, 8.0)).unwrap();
     for delta in [4.0, 2.0, 1.0, 0.5] {
-        let next = build_chunk(&grid, &ChunkSpec::continued(whole, delta, &chain)).unwrap();
-        let fresh = build_chunk(&grid, &ChunkSpec::unconstrained(whole, delta)).unwrap();
+        let next = meshed(&grid, &ChunkSpec::continued(whole, delta, &chain)).unwrap();
+        let fresh = meshed(&grid, &ChunkSpec::unconstrained(whole, delta)).unwrap();
         assert!(next.max_error_m <= delta, "{} over δ {delta}", next.max_error_m);
         let kept = points(&next, false);
         assert!(points(&chain, false).iter().all(|p| kept.binary_search(p).is_ok()), "δ {delta}");
@@ -315,7 +332,7 @@ fn a_meshs_locator_is_indexed_once_and_answers_as_a_fresh_one() {
     let (w, h) = (65, 49);
     let heights = rough(w, h);
     let grid = Grid::new(w, h, &heights, None);
-    let mesh = build_chunk(&grid, &ChunkSpec::unconstrained(((0, 64), (0, 48)), 2.0)).unwrap();
+    let mesh = meshed(&grid, &ChunkSpec::unconstrained(((0, 64), (0, 48)), 2.0)).unwrap();
     assert!(mesh.locator_index.get().is_none(), "indexed before it was asked for");
     let (first, second) = (mesh.locator(), mesh.locator());
     assert!(mesh.locator_index.get().is_some(), "not indexed when first asked for");
@@ -354,7 +371,17 @@ fn crowded_crossings_move_onto_the_lattice_without_folding_a_piece() {
     let lattice = 256.0;
     let before = soup.pts.len();
     let nested = (Targeting { nested: true, parent: None }, soup.pts.len());
+    assert_soup_sound(&soup);
     cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, nested, lattice);
+    // The two rim crossings move along the line onto the grid, off the
+    // rim, so the fan's border bends in by a hair there (a chunk's border
+    // is its rectangle, which crossings never leave); every check before
+    // the border's shape holds.
+    match Tin::from_soup(soup.pts.clone(), &soup.tris, &soup.fixed).sanity_check() {
+        Ok(()) => {}
+        Err(Broken::BorderNotConvex { v }) if v as usize >= before => {}
+        Err(broken) => panic!("{broken}"),
+    }
     let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
     let area = |t: &[u32; 3]| robust::orient2d(pos(t[0]), pos(t[1]), pos(t[2])) / 2.0;
     for t in &soup.tris {
@@ -395,12 +422,12 @@ fn samples_placed_against_moved_crossings_target_the_parent_surface() {
     fn on_grid(spec: ChunkSpec<'_>, k: u32) -> ChunkSpec<'_> {
         ChunkSpec { cut_lattice: Some(k), ..spec }
     }
-    let parent = build_chunk(&grid, &on_grid(lined(root, ((0, 128), (0, 96)), 4.0, None, false), 2)).unwrap();
+    let parent = meshed(&grid, &on_grid(lined(root, ((0, 128), (0, 96)), 4.0, None, false), 2)).unwrap();
     let surface = parent.locator();
     let (mut samples, mut crossings) = (0, 0);
     for (x, y, footprint) in [(0, 0, ((0, 64), (0, 48))), (1, 0, ((64, 128), (0, 48))), (1, 1, ((64, 128), (48, 96)))] {
         let key = ChunkKey { level: 1, x, y };
-        let child = build_chunk(&grid, &on_grid(lined(key, footprint, 2.0, Some(&parent), false), 3)).unwrap();
+        let child = meshed(&grid, &on_grid(lined(key, footprint, 2.0, Some(&parent), false), 3)).unwrap();
         for v in &child.vertices {
             if whole(v.x) && whole(v.z) {
                 let (_, ph) = surface.locate(v.x, v.z, 1e-9).expect("on the parent");
@@ -431,6 +458,7 @@ fn a_crossing_next_to_a_sample_does_not_land_on_it() {
     let mut soup = Soup { pts, tris: vec![[0, 1, 2]], fixed: vec![[true; 3]], origin: vec![0] };
     let nested = (Targeting { nested: true, parent: None }, soup.pts.len());
     cut_along_line(&mut soup, &window, Line { vertical: true, coord: 10 }, nested, 256.0);
+    assert_soup_sound(&soup);
     let x = soup.pts[3];
     assert_eq!((x.x, x.z * 256.0), (10.0, 1279.0), "the other neighbour, off the sample");
     let pos = |v: u32| Coord { x: soup.pts[v as usize].x, y: soup.pts[v as usize].z };
@@ -456,7 +484,9 @@ fn a_vertex_a_hair_from_a_free_edge_takes_its_place_where_the_surface_allows() {
         let pts = vec![v(0.0, 0.5, 100.0), v(8.0, 8.5, 100.0), v(4.0, 4.5001, c_height), v(6.0, 2.0, 100.0)];
         let mut tin = Tin::from_soup(pts, &[[a, b, c], [b, a, d]], &[[false; 3], [false; 3]]);
         let lines = Lines::new(&tin, ((0, 8), (0, 8)), [Some(0), None, Some(8)], [Some(0), None, Some(8)]);
+        assert_eq!(tin.sanity_check(), Ok(()));
         unsliver(&mut tin, &window, ((0, 8), (0, 8)), &lines, target, 1.0 / lattice);
+        assert_eq!(tin.sanity_check(), Ok(()));
         let turned = (0..2).filter(|&t| !counter_clockwise(&tin.corners(t))).count();
         (tin.find_edge(a, b).is_some(), tin.find_edge(c, d).is_some(), turned)
     };
@@ -481,6 +511,7 @@ fn a_sample_is_split_onto_an_edge_only_where_data_lies_across() {
     let (a, b, east, west) = (0, 1, 2, 3);
     let pts = vec![v(3.5, 0.0), v(3.5, 8.0), v(8.0, 4.0), v(0.5, 4.0)];
     let tin = Tin::from_soup(pts, &[[b, a, east], [a, b, west]], &[[true, false, false], [true, false, false]]);
+    assert_eq!(tin.sanity_check(), Ok(()));
     assert_eq!((tin.ends(0), tin.ends(3)), ((b, a), (a, b)));
     let grid = Grid::new(w, h, &heights, Some(&filled));
     let window = Window::new(&grid, ((0, 8), (0, 8)));
