@@ -138,26 +138,25 @@ fn a_geoid_that_does_not_cover_the_dem_is_refused_with_exit_2_and_no_output() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let model = model();
+    // What a build of `dem` under the geoid model `geoid` prints, after
+    // checking it ended with exit 2 and wrote nothing.
+    let refused = |dem: &Path, geoid: &Path| {
+        let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--geoid", geoid.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(!out.exists());
+        err
+    };
     // Dallas–Fort Worth, 32.7° N, is 13° south of the crop.
-    let dfw = fixture("dfw_texas_srtm3.tif");
-    let o = cli(&["build", dfw.to_str().unwrap(), "-o", out.to_str().unwrap(), "--geoid", model.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = refused(&fixture("dfw_texas_srtm3.tif"), &model);
     assert!(err.contains("egm96_15_helens.gtx") && err.contains("does not cover"), "{err}");
-    assert!(!out.exists());
     // A grid with no CRS cannot be put under a geoid.
     let png = fixture("jacksboro_fault_u16.png");
-    let o = cli(&["build", png.to_str().unwrap(), "-o", out.to_str().unwrap(), "--geoid", model.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = refused(&png, &model);
     assert!(err.contains("jacksboro_fault_u16.png") && err.contains("names no coordinate system"), "{err}");
-    assert!(!out.exists());
     // A file that is no model.
-    let o = cli(&["build", helens().to_str().unwrap(), "-o", out.to_str().unwrap(), "--geoid", png.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = refused(&helens(), &png);
     assert!(err.contains("jacksboro_fault_u16.png"), "{err}");
-    assert!(!out.exists());
 }
 
 /// A sharded build carries the model in its manifest: the jobs give the

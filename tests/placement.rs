@@ -414,20 +414,11 @@ fn off_the_ellipsoid(drawn: [f64; 3], lat: f64, lon: f64) -> (f64, f64) {
     (along, (distance(d, [0.0; 3]).powi(2) - along * along).max(0.0).sqrt())
 }
 
-/// A geographic grid 2° × 2° (220 km across) at 40° N, flat at 0 m.
-fn wide_geographic_asc(dir: &Path) -> std::path::PathBuf {
-    let dem = dir.join("wide.asc");
-    let mut text = "ncols 41\nnrows 41\nxllcorner -106.025\nyllcorner 38.975\ncellsize 0.05\n".to_string();
-    text += &"0 ".repeat(41 * 41);
-    std::fs::write(&dem, text).unwrap();
-    std::fs::write(dem.with_extension("prj"), "+proj=longlat +datum=WGS84 +no_defs").unwrap();
-    dem
-}
-
 #[test]
 fn the_flat_frames_distance_from_the_ellipsoid_is_stated_measured_and_warned_about() {
     let tmp = tempfile::tempdir().unwrap();
-    let dem = wide_geographic_asc(tmp.path());
+    // 2° × 2° at 40° N, sample centres from 106° W, 39° N.
+    let dem = geographic_asc(tmp.path(), "wide", (41, 41), (-106.0, 39.0), 0.05);
     let out = tmp.path().join("out");
     let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", "none"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

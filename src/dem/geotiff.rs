@@ -38,7 +38,7 @@ use tiff::tags::Tag;
 
 use super::{DemError, check_expansion, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
 use crate::geodesy::SourceCrs;
-use crate::heightfield::{Crs, Georef, Heightfield};
+use crate::heightfield::{Crs, Heightfield};
 
 /// GeoKey ids (GeoTIFF 1.1, section 7).
 const GT_MODEL_TYPE: u16 = 1024;
@@ -133,20 +133,7 @@ pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
         place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
     })?;
 
-    let mut hf = Heightfield {
-        width,
-        height,
-        heights,
-        spacing_m: [1.0, 1.0],
-        georef: Georef {
-            crs: Crs::Unknown,
-            origin: [0.0, 0.0],
-            step: [1.0, -1.0],
-            local_tangent: None,
-            definition: None,
-        },
-        source: file_name(path),
-    };
+    let mut hf = Heightfield::ungeoreferenced(width, height, heights, file_name(path));
     let mut dec = dec.with_limits(tag_limits(file_len));
     georeference(path, &mut dec, &mut hf)?;
     Ok(hf)
