@@ -11,6 +11,12 @@ pub struct Part {
     pub normals: Vec<[f32; 3]>,
     /// Morph target: y offset that puts each vertex on the parent surface.
     pub morph_dy: Vec<f64>,
+    /// The x and z of each morph offset, in the curved frame only (empty:
+    /// 0, the flat frame's vertical deltas).
+    pub morph_dxz: Vec<[f64; 2]>,
+    /// Where on the grid each vertex is, metres (column · s_x, row · s_z),
+    /// in the curved frame only (empty: the positions' own x and z).
+    pub plan_m: Vec<[f64; 2]>,
     /// Triangles, counter-clockwise seen from above (+y).
     pub indices: Vec<u32>,
 }
@@ -19,6 +25,34 @@ impl Part {
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.indices.len() / 3
+    }
+
+    /// Where on the grid vertex `k` is, metres: x east, z south.
+    pub fn plan(&self, k: usize) -> [f64; 2] {
+        match self.plan_m.get(k) {
+            Some(&p) => p,
+            None => [self.positions[k][0], self.positions[k][2]],
+        }
+    }
+
+    /// The morph offset of vertex `k`, metres.
+    pub fn morph(&self, k: usize) -> [f64; 3] {
+        let [dx, dz] = self.morph_dxz.get(k).copied().unwrap_or([0.0; 2]);
+        [dx, self.morph_dy[k], dz]
+    }
+
+    /// Appends vertex `k` of `from` (position, normal and morph, and the
+    /// curved frame's fields where `from` has them).
+    pub fn push_from(&mut self, from: &Part, k: usize) {
+        self.positions.push(from.positions[k]);
+        self.normals.push(from.normals[k]);
+        self.morph_dy.push(from.morph_dy[k]);
+        if !from.morph_dxz.is_empty() {
+            self.morph_dxz.push(from.morph_dxz[k]);
+        }
+        if !from.plan_m.is_empty() {
+            self.plan_m.push(from.plan_m[k]);
+        }
     }
 }
 

@@ -144,7 +144,32 @@ pub struct Config {
     /// `mesh::decimate`: fewer triangles, slivers on flat ground). Default
     /// `rtin`.
     pub mesher: Mesher,
+    /// The frame a georeferenced grid's chunks are written in: `flat`
+    /// (grid metres on the tangent plane at the grid centre), `curved`
+    /// (every vertex at its WGS 84 position, `geodesy::Globe`; needs
+    /// `mesher = "rtin"` and `compress = "none"`), or `auto`: curved where
+    /// the flat frame would draw a sample farther than a quarter of
+    /// `max_error_m` from its place on the ellipsoid and those settings
+    /// allow it, else flat. Default `auto`.
+    pub frame: Frame,
 }
+
+/// The frame of a placed tileset's chunks ([`Config::frame`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Frame {
+    /// Curved where the flat frame's error is over a quarter of the leaf δ.
+    #[default]
+    Auto,
+    /// Grid metres on the tangent plane at the centre.
+    Flat,
+    /// Every vertex at its WGS 84 position.
+    Curved,
+}
+
+/// The share of `max_error_m` the flat frame's distance from the ellipsoid
+/// may reach before `frame = "auto"` writes the curved frame.
+pub const FLAT_FRAME_SHARE: f64 = 0.25;
 
 /// Which mesher makes the chunks ([`Config::mesher`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, clap::ValueEnum)]
@@ -325,6 +350,7 @@ impl Default for Config {
             compress: Compress::None,
             normal_bits: None,
             mesher: Mesher::Rtin,
+            frame: Frame::Auto,
         }
     }
 }
@@ -446,6 +472,14 @@ impl Config {
             && !(2..=8).contains(&b)
         {
             return bad("normal_bits", b.to_string(), "must be within 2..=8 bits");
+        }
+        if self.frame == Frame::Curved && (self.mesher != Mesher::Rtin || self.compress != Compress::None) {
+            return bad(
+                "frame",
+                "curved".into(),
+                "needs mesher = \"rtin\" and compress = \"none\" (the tin mesher's cut points and quantized \
+                 positions live on the flat grid)",
+            );
         }
         Ok(())
     }

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 use terrachunk::bench;
-use terrachunk::config::{Compress, Config, Mesher, TextureFormat, Thin};
+use terrachunk::config::{Compress, Config, Frame, Mesher, TextureFormat, Thin};
 use terrachunk::pipeline::{BuildOptions, Report, build};
 use terrachunk::shard;
 use terrachunk::texture::TextureSource;
@@ -154,6 +154,12 @@ struct BuildArgs {
     /// flat ground) [default: rtin].
     #[arg(long, value_enum)]
     mesher: Option<Mesher>,
+    /// The frame of a georeferenced grid's chunks: `flat` (the tangent
+    /// plane at the centre), `curved` (every vertex at its WGS 84 position)
+    /// or `auto` (curved where flat would miss by over max-error/4)
+    /// [default: auto].
+    #[arg(long, value_enum)]
+    frame: Option<Frame>,
     /// Build every chunk to the deepest level, even below one that already
     /// meets the error (to measure what the error-bounded tree saves).
     #[arg(long)]
@@ -427,6 +433,7 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
         max_chunk_vertices,
         thin,
         mesher,
+        frame,
         complete_tree,
         compress,
         force,
@@ -475,6 +482,9 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
     }
     if let Some(m) = mesher {
         cfg.mesher = m;
+    }
+    if let Some(f) = frame {
+        cfg.frame = f;
     }
     cfg.complete_tree |= complete_tree;
     if let Some(c) = compress {

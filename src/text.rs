@@ -44,7 +44,13 @@ impl fmt::Display for VerifyReport {
                 t.seams_checked, t.max_seam_diff, t.seam_tolerance, t.max_seam_rms, t.seam_rms_tolerance
             )?;
         }
-        if let Some(e) = &r.flat_frame_error {
+        if r.curved {
+            writeln!(
+                f,
+                "on the globe: curved; each error above is a sample's distance from the surface as a client \
+                 places it, along the ellipsoid normal"
+            )?;
+        } else if let Some(e) = &r.flat_frame_error {
             writeln!(
                 f,
                 "on the globe: the planar tileset is drawn up to {:.3} m along the ellipsoid normal and {:.3} m \

@@ -59,6 +59,9 @@ pub struct ChunkMesh {
     /// The bucket grid of [`ChunkMesh::locator`], built on first use and
     /// then shared (the four children's void checks each ask for one).
     pub locator_index: std::sync::OnceLock<crate::mesh::locate::LocatorIndex>,
+    /// In the curved frame, each vertex's morph target as a world point:
+    /// the parent's written (chord) surface there (empty in the flat frame).
+    pub parent_points: Vec<[f64; 3]>,
 }
 
 impl ChunkMesh {

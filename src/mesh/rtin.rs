@@ -39,6 +39,7 @@ use rayon::prelude::*;
 
 use super::grid::Grid;
 use super::{ChunkMesh, MeshError, MeshVertex};
+use crate::geodesy::Globe;
 use crate::quadtree::{ChunkKey, ChunkTree, Span};
 
 /// Plans the chunk tree the bintree needs: every chunk of a level is a
@@ -349,7 +350,10 @@ impl Rtin {
     /// Meshes chunk `key` of `tree` at its level's δ: the bintree's
     /// triangles inside its square, with each vertex's parent-surface height.
     /// `max_vertices`: more makes [`MeshError::TooDense`]; `cancel`: set
-    /// when another chunk failed.
+    /// when another chunk failed. With a `globe` (the curved frame, and the
+    /// grid's spacing in metres) a
+    /// triangle is also split where its chord's sag ([`Globe::margin_m`])
+    /// would take it past δ, and each vertex gets its parent-surface point.
     pub fn build_chunk(
         &self,
         grid: &Grid,
@@ -357,6 +361,7 @@ impl Rtin {
         key: ChunkKey,
         max_vertices: usize,
         cancel: Option<&AtomicBool>,
+        globe: Option<(&Globe, [f64; 2])>,
     ) -> Result<ChunkMesh, MeshError> {
         if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
             return Err(MeshError::Cancelled);
@@ -385,15 +390,26 @@ impl Rtin {
             index: VertexIndex::over(side),
             vertices: Vec::new(),
             triangles: Vec::new(),
+            globe,
+            parent_points: Vec::new(),
+            curved_error_m: 0.0,
         };
         for (t, ph) in square_triangles(from.0, from.1, from.2) {
-            let hs = ph.map(|p| vertex_height(grid, p));
-            m.descend(t, [hs[0], hs[1], hs[2]]);
+            match globe {
+                None => m.descend(t, ph.map(|p| vertex_height(grid, p))),
+                Some((g, _)) => m.descend(
+                    t,
+                    ph.map(|p| {
+                        let h = vertex_height(grid, p);
+                        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h) }
+                    }),
+                ),
+            }
         }
         if m.vertices.len() > max_vertices {
             return Err(MeshError::TooDense { level: key.level, x: key.x, y: key.y, delta_m, limit: max_vertices });
         }
-        let Mesher { vertices, triangles, .. } = m;
+        let Mesher { vertices, triangles, parent_points, curved_error_m, .. } = m;
         // A triangle with a valid corner covers a valid sample; one with
         // none is scanned to see. The largest error is measured by scanning
         // in falling order of each triangle's stored bound (the error at
@@ -423,6 +439,8 @@ impl Rtin {
             let corners = triangles[k].map(|v| vertices[v as usize]);
             max_error_m = max_error_m.max(scan_triangle(grid, &corners).error);
         }
+        // The chunk is final only where its sag is inside the leaves' δ too.
+        max_error_m = max_error_m.max(curved_error_m.min(delta_m));
         let n = triangles.len();
         Ok(ChunkMesh {
             key,
@@ -437,8 +455,10 @@ impl Rtin {
             relief_m: 0.0,
             scans: vec![None; n],
             locator_index: std::sync::OnceLock::new(),
+            parent_points,
         })
     }
+
 
     /// Whether the mesh at `delta` splits triangle `t` (whose box lies
     /// inside or straddles the grid).
@@ -704,11 +724,73 @@ struct Mesher<'a> {
     index: VertexIndex,
     vertices: Vec<MeshVertex>,
     triangles: Vec<[u32; 3]>,
+    /// The curved frame and the grid spacing (metres), if it is written in it.
+    globe: Option<(&'a Globe, [f64; 2])>,
+    /// Per vertex, its parent-surface point (the curved frame only).
+    parent_points: Vec<[f64; 3]>,
+    /// The largest error bound plus sag of a written triangle (the curved
+    /// frame only).
+    curved_error_m: f64,
+}
+
+/// What the descent carries to each corner: the parent surface there, as
+/// a height (the flat frame) or also as a world point (the curved one).
+trait ParentSurface: Copy {
+    /// A vertex the parent has too: its own height `h` at `p`.
+    fn own(globe: Option<(&Globe, [f64; 2])>, p: P, h: f64) -> Self;
+    /// The middle of a parent edge: the parent's surface is linear along it.
+    fn middle(a: Self, b: Self) -> Self;
+    fn height(&self) -> f64;
+    fn point(&self) -> Option<[f64; 3]>;
+}
+
+impl ParentSurface for f64 {
+    #[inline]
+    fn own(_: Option<(&Globe, [f64; 2])>, _: P, h: f64) -> f64 {
+        h
+    }
+    #[inline]
+    fn middle(a: f64, b: f64) -> f64 {
+        (a + b) / 2.0
+    }
+    #[inline]
+    fn height(&self) -> f64 {
+        *self
+    }
+    #[inline]
+    fn point(&self) -> Option<[f64; 3]> {
+        None
+    }
+}
+
+/// The parent surface in the curved frame: its chord triangles are linear
+/// between their corners' world points, so the middle of an edge is the
+/// middle of its ends' points.
+#[derive(Clone, Copy)]
+struct OnGlobe {
+    h: f64,
+    p: [f64; 3],
+}
+
+impl ParentSurface for OnGlobe {
+    fn own(globe: Option<(&Globe, [f64; 2])>, p: P, h: f64) -> OnGlobe {
+        let (g, _) = globe.expect("the curved frame carries its globe");
+        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h) }
+    }
+    fn middle(a: OnGlobe, b: OnGlobe) -> OnGlobe {
+        OnGlobe { h: (a.h + b.h) / 2.0, p: [0, 1, 2].map(|k| (a.p[k] + b.p[k]) / 2.0) }
+    }
+    fn height(&self) -> f64 {
+        self.h
+    }
+    fn point(&self) -> Option<[f64; 3]> {
+        Some(self.p)
+    }
 }
 
 impl Mesher<'_> {
-    /// `ph`: the parent surface's height at `t`'s corners a, b, r.
-    fn descend(&mut self, t: Tri, ph: [f64; 3]) {
+    /// `ph`: the parent surface at `t`'s corners a, b, r.
+    fn descend<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
         let (x0, x1, z0, z1) = t.bbox();
         let (sx, sz, c) = (self.square.0, self.square.1, self.side);
         // Only what reaches into the chunk's square.
@@ -720,22 +802,21 @@ impl Mesher<'_> {
             return;
         }
         let coarser = |side: u32| t.hyp2() > 2 * u64::from(side) * u64::from(side);
-        let split = if coarser(c) { t.midpoint() } else { self.rtin.splits(&t, place, self.delta_m) };
+        let split = if coarser(c) { t.midpoint() } else { self.splits(&t, place, self.delta_m, c) };
         let Some(m) = split else {
             debug_assert_eq!(place, Place::Inside, "a triangle past the grid always splits");
             self.emit(t, ph);
             return;
         };
-        let hm = vertex_height(self.grid, m);
         // The parent's surface at m: m itself where the parent splits here
         // too, else the middle of the hypotenuse it lies on.
         let pm = match self.parent {
-            None => hm,
+            None => S::own(self.globe, m, vertex_height(self.grid, m)),
             Some((ps, pd)) => {
-                if coarser(ps) || self.rtin.splits(&t, place, pd).is_some() {
-                    hm
+                if coarser(ps) || self.splits(&t, place, pd, ps).is_some() {
+                    S::own(self.globe, m, vertex_height(self.grid, m))
                 } else {
-                    (ph[0] + ph[1]) / 2.0
+                    S::middle(ph[0], ph[1])
                 }
             }
         };
@@ -744,7 +825,58 @@ impl Mesher<'_> {
         self.descend(k1, [ph[1], ph[2], pm]);
     }
 
-    fn emit(&mut self, t: Tri, ph: [f64; 3]) {
+    /// Whether the mesh at `delta` (a level of squares of `side` cells)
+    /// splits `t`: where its error does, or, in the curved frame, where its
+    /// error and its chord's sag together do. The sag is taken over both
+    /// triangles on `t`'s hypotenuse, so the two decide alike (no crack).
+    #[inline]
+    fn splits(&self, t: &Tri, place: Place, delta: f64, side: u32) -> Option<P> {
+        let m = self.rtin.splits(t, place, delta);
+        if m.is_some() {
+            return m;
+        }
+        let (globe, s) = self.globe?;
+        let m = t.midpoint()?;
+        let e = f64::from(self.rtin.error_at(m.0, m.1));
+        (e + self.sag(t, m, globe, s, side) > delta).then_some(m)
+    }
+
+    /// How far `t`'s chord may sag from the surface its heights describe,
+    /// over its samples ([`Globe::margin_m`]), split at `m`; with what the
+    /// f32 rounding of positions in a chunk of `side` cells may add.
+    fn sag(&self, t: &Tri, m: P, globe: &Globe, s: [f64; 2], side: u32) -> f64 {
+        let metres = |a: P, b: P| {
+            let (dx, dz) = (f64::from(a.0) - f64::from(b.0), f64::from(a.1) - f64::from(b.1));
+            (dx * s[0]).hypot(dz * s[1])
+        };
+        let longest = metres(t.a, t.b).max(metres(t.a, t.r)).max(metres(t.b, t.r));
+        // The apex across the hypotenuse: r reflected through m.
+        let across = (i64::from(2 * m.0) - i64::from(t.r.0), i64::from(2 * m.1) - i64::from(t.r.1));
+        let mut slope = self.slope([t.a, t.b, t.r], s);
+        if across.0 >= 0 && across.1 >= 0 && (across.0 as usize) < self.grid.width && (across.1 as usize) < self.grid.height {
+            slope = slope.max(self.slope([t.a, t.b, (across.0 as u32, across.1 as u32)], s));
+        }
+        let rounding = 4.0 * f64::from(f32::EPSILON) * f64::from(side) * s[0].max(s[1]);
+        globe.margin_m(longest, slope) + rounding
+    }
+
+    /// The steepest slope (rise over run) of the plane through three grid
+    /// points at their vertex heights.
+    fn slope(&self, c: [P; 3], s: [f64; 2]) -> f64 {
+        let [a, b, r] = c.map(|p| [f64::from(p.0) * s[0], f64::from(p.1) * s[1], vertex_height(self.grid, p)]);
+        let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [r[0] - a[0], r[1] - a[1], r[2] - a[2]]);
+        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let slope = n[0].hypot(n[1]) / n[2].abs();
+        if slope.is_finite() { slope } else { 0.0 }
+    }
+
+    fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
+        // In the curved frame a triangle's error bound holds its sag too,
+        // which decides whether the chunk needs children.
+        if let (Some((globe, s)), Some(m)) = (self.globe, t.midpoint()) {
+            let bound = f64::from(self.rtin.error_at(m.0, m.1)) + self.sag(&t, m, globe, s, self.side);
+            self.curved_error_m = self.curved_error_m.max(bound);
+        }
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
         // Counter-clockwise seen from above (y up), as the TIN's are stored:
         // clockwise in x-east, z-south grid space.
@@ -755,13 +887,16 @@ impl Mesher<'_> {
         self.triangles.push(v);
     }
 
-    fn vertex(&mut self, p: P, ph: f64) -> u32 {
+    fn vertex<S: ParentSurface>(&mut self, p: P, ph: S) -> u32 {
         let local = (p.0 - self.square.0, p.1 - self.square.1);
         let next = self.vertices.len() as u32;
         let v = self.index.entry(local, next);
         if v == next {
             let h = vertex_height(self.grid, p);
-            self.vertices.push(MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph });
+            self.vertices.push(MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph: ph.height() });
+            if let Some(point) = ph.point() {
+                self.parent_points.push(point);
+            }
         }
         v
     }
@@ -821,7 +956,7 @@ mod tests {
             for y in 0..tree.zs[l as usize].len() as u32 {
                 for x in 0..tree.xs[l as usize].len() as u32 {
                     let key = ChunkKey { level: l, x, y };
-                    out.push(rtin.build_chunk(&grid, &tree, key, usize::MAX, None).unwrap());
+                    out.push(rtin.build_chunk(&grid, &tree, key, usize::MAX, None, None).unwrap());
                 }
             }
         }
@@ -899,7 +1034,7 @@ mod tests {
         let grid = Grid::new(5, 5, &heights, None);
         let tree = plan(5, 5, 4.0, None, 4, 0);
         let rtin = Rtin::new(&grid, &tree, None);
-        let m = rtin.build_chunk(&grid, &tree, ChunkKey { level: 0, x: 0, y: 0 }, usize::MAX, None).unwrap();
+        let m = rtin.build_chunk(&grid, &tree, ChunkKey { level: 0, x: 0, y: 0 }, usize::MAX, None, None).unwrap();
         assert_eq!(m.triangles.len(), 2);
         assert_eq!(m.max_error_m, 3.0);
         // The vertex it would take carries the true error (or a bound on
@@ -995,7 +1130,7 @@ mod tests {
                 let l = level as usize;
                 let most = (0..tree.zs[l].len() as u32)
                     .flat_map(|y| (0..tree.xs[l].len() as u32).map(move |x| ChunkKey { level, x, y }))
-                    .map(|key| rtin.build_chunk(&grid, &tree, key, usize::MAX, None).unwrap().vertices.len())
+                    .map(|key| rtin.build_chunk(&grid, &tree, key, usize::MAX, None, None).unwrap().vertices.len())
                     .max()
                     .unwrap();
                 prop_assert!(most <= counted + 4 && most >= counted, "level {}: {} vertices, counted {}", level, most, counted);

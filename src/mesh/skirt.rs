@@ -122,9 +122,7 @@ pub fn compact(mut p: Part) -> Part {
         if *r != u32::MAX {
             *r = n;
             n += 1;
-            out.positions.push(p.positions[k]);
-            out.normals.push(p.normals[k]);
-            out.morph_dy.push(p.morph_dy[k]);
+            out.push_from(&p, k);
         }
     }
     out.indices = p.indices.drain(..).map(|i| remap[i as usize]).collect();

@@ -106,9 +106,14 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
             let n = p.positions.len();
             // Quantized, each coordinate maps the position as written.
             let uv = |img: &TileImage| -> Vec<[f32; 2]> {
-                p.positions
-                    .iter()
-                    .map(|q| frame.as_ref().map_or(*q, |f| f.on_grid(q)))
+                (0..n)
+                    .map(|k| match &frame {
+                        Some(f) => f.on_grid(&p.positions[k]),
+                        None => {
+                            let [x, z] = p.plan(k);
+                            [x, 0.0, z]
+                        }
+                    })
                     .map(|q| texcoord(&q, chunk.footprint, ctx.spacing_m, img.texels))
                     .collect()
             };
@@ -250,7 +255,7 @@ fn float_attributes(sink: &mut Sink, prim: &PrimData, origin: [f64; 3]) -> (Valu
     let Sink { bin, views, accessors, .. } = sink;
     let p = prim.part;
     let local: Vec<[f32; 3]> = p.positions.iter().map(|q| [0, 1, 2].map(|a| (q[a] - origin[a]) as f32)).collect();
-    let delta: Vec<[f32; 3]> = p.morph_dy.iter().map(|&d| [0.0, d as f32, 0.0]).collect();
+    let delta: Vec<[f32; 3]> = (0..p.positions.len()).map(|k| p.morph(k).map(|d| d as f32)).collect();
     let pos = push_vec3(bin, views, accessors, &local);
     let nrm = push_vec3(bin, views, accessors, &prim.normals);
     let dlt = push_vec3(bin, views, accessors, &delta);
@@ -287,7 +292,7 @@ fn share_skirt(surface: &Part, skirt: &Part) -> (Part, Vec<u32>) {
         .enumerate()
         .map(|(k, p)| {
             at.get(&key(p))
-                .filter(|&&i| surface.normals[i] == skirt.normals[k] && surface.morph_dy[i] == skirt.morph_dy[k])
+                .filter(|&&i| surface.normals[i] == skirt.normals[k] && surface.morph(i) == skirt.morph(k))
                 .map(|&i| i as u32)
         })
         .collect();
@@ -297,9 +302,7 @@ fn share_skirt(surface: &Part, skirt: &Part) -> (Part, Vec<u32>) {
         .map(|&v| {
             let v = v as usize;
             *remap[v].get_or_insert_with(|| {
-                set.positions.push(skirt.positions[v]);
-                set.normals.push(skirt.normals[v]);
-                set.morph_dy.push(skirt.morph_dy[v]);
+                set.push_from(skirt, v);
                 (set.positions.len() - 1) as u32
             })
         })
@@ -316,19 +319,12 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
         VertexCache::Strip => meshopt::optimize_vertex_cache_strip(&p.indices, n),
     };
     let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
-    let used = remap.iter().filter(|&&r| r != u32::MAX).count();
-    let mut out = Part {
-        positions: vec![[0.0; 3]; used],
-        normals: vec![[0.0; 3]; used],
-        morph_dy: vec![0.0; used],
-        indices: indices.iter().map(|&i| remap[i as usize]).collect(),
-    };
-    for (old, &new) in remap.iter().enumerate() {
-        if new != u32::MAX {
-            out.positions[new as usize] = p.positions[old];
-            out.normals[new as usize] = p.normals[old];
-            out.morph_dy[new as usize] = p.morph_dy[old];
-        }
+    let mut order: Vec<(u32, usize)> =
+        remap.iter().enumerate().filter(|(_, r)| **r != u32::MAX).map(|(old, &new)| (new, old)).collect();
+    order.sort_unstable();
+    let mut out = Part { indices: indices.iter().map(|&i| remap[i as usize]).collect(), ..Part::default() };
+    for (_, old) in order {
+        out.push_from(p, old);
     }
     out
 }

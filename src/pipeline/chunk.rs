@@ -9,7 +9,10 @@ use std::time::Instant;
 
 use super::BuildError;
 use super::schedule::{BuiltChunk, LevelFigures, Meshed, Run, TileFigures, Timers, few_chunks};
+use std::collections::HashMap;
+
 use crate::chunk::{Chunk, Part};
+use crate::geodesy::Globe;
 use crate::mesh::decimate::{ChunkSpec, DividingLines, build_chunk};
 use crate::mesh::grid::Grid;
 use crate::mesh::skirt::build_skirt;
@@ -34,10 +37,13 @@ impl Run<'_> {
         let t = Instant::now();
         // Skirts reach below any neighbour of level ≥ L − 1 in any morph state.
         let margin = self.tree.delta_m[(key.level as usize).saturating_sub(2)];
-        let chunk = Chunk {
+        let mut chunk = Chunk {
             delta_m: self.tree.delta_m[key.level as usize],
             ..assemble(self.grid, self.hf.spacing_m, &mesh, margin)
         };
+        if let Some(globe) = self.globe {
+            bend(&mut chunk, &mesh, globe, self.hf.spacing_m);
+        }
         Timers::add(&self.timers.skirt_morph, t);
         Ok((mesh, chunk))
     }
@@ -68,7 +74,14 @@ impl Run<'_> {
             thin: self.opts.config.thin.level(!tree.splits(level)),
         };
         let mesh = match self.rtin {
-            Some(r) => r.build_chunk(self.grid, self.tree, key, spec.max_vertices, spec.cancel)?,
+            Some(r) => r.build_chunk(
+                self.grid,
+                self.tree,
+                key,
+                spec.max_vertices,
+                spec.cancel,
+                self.globe.map(|g| (g, self.hf.spacing_m)),
+            )?,
             None => build_chunk(self.grid, &spec)?,
         };
         if mesh.max_error_m > spec.delta_m {
@@ -131,11 +144,13 @@ impl Run<'_> {
 /// `.glb` micro-benchmark (`benches/stages.rs`).
 pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
     let (used, indices) = written(mesh);
+    let used: Vec<MeshVertex> = used.into_iter().map(|(v, _)| v).collect();
     let mut surface = Part {
         positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
         normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),
         morph_dy: Vec::new(),
         indices,
+        ..Part::default()
     };
     let parent_h: Vec<f64> = used.iter().map(|v| v.ph).collect();
     surface.morph_dy = used.iter().zip(&parent_h).map(|(v, p)| p - v.h).collect();
@@ -152,9 +167,53 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64)
     }
 }
 
+/// Moves a chunk assembled in grid metres into the curved frame: every
+/// vertex to the world position of its grid point and height, its normal
+/// turned from the grid's axes to the local ones there, and its morph
+/// delta to the parent's written surface (`mesh.parent_points`, which the
+/// bintree carries down its edges). Skirt tops keep their surface
+/// vertex's delta and bottoms 0, as in the flat frame; a bottom hangs
+/// along the normal.
+pub fn bend(chunk: &mut Chunk, mesh: &ChunkMesh, globe: &Globe, spacing: [f64; 2]) {
+    let (used, _) = written(mesh);
+    let targets: Vec<[f64; 3]> = used.iter().map(|&(_, k)| mesh.parent_points[k]).collect();
+    let key = |p: &[f64; 3]| p.map(f64::to_bits);
+    let surface = &mut chunk.surface;
+    let tops: HashMap<[u64; 3], usize> = surface.positions.iter().enumerate().map(|(k, p)| (key(p), k)).collect();
+    let turn = |n: [f32; 3], axes: [[f64; 3]; 3]| -> [f32; 3] {
+        let v = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|c| (c / len) as f32)
+    };
+    let mut deltas = Vec::with_capacity(surface.positions.len());
+    for (k, &(j, i)) in chunk.surface_grid.iter().enumerate() {
+        let p = globe.world(j, i, surface.positions[k][1]);
+        surface.normals[k] = turn(surface.normals[k], globe.axes(j, i));
+        deltas.push([0, 1, 2].map(|a| targets[k][a] - p[a]));
+        surface.positions[k] = p;
+        surface.plan_m.push([j * spacing[0], i * spacing[1]]);
+    }
+    surface.morph_dy = deltas.iter().map(|d| d[1]).collect();
+    surface.morph_dxz = deltas.iter().map(|d| [d[0], d[2]]).collect();
+    let skirt = &mut chunk.skirt;
+    for k in 0..skirt.positions.len() {
+        let flat = skirt.positions[k];
+        let (j, i) = (flat[0] / spacing[0], flat[2] / spacing[1]);
+        // Bintree vertices are samples: whole grid indices.
+        let (j, i) = (j.round(), i.round());
+        skirt.positions[k] = globe.world(j, i, flat[1]);
+        skirt.normals[k] = turn(skirt.normals[k], globe.axes(j, i));
+        skirt.plan_m.push([j * spacing[0], i * spacing[1]]);
+        let d = tops.get(&key(&flat)).map_or([0.0; 3], |&t| deltas[t]);
+        skirt.morph_dy[k] = d[1];
+        skirt.morph_dxz.push([d[0], d[2]]);
+    }
+}
+
 /// The vertices of `mesh`'s written triangles, in the order they are first
-/// used, and the triangles' indices into them.
-fn written(mesh: &ChunkMesh) -> (Vec<MeshVertex>, Vec<u32>) {
+/// used (each with its index in `mesh.vertices`), and the triangles'
+/// indices into them.
+fn written(mesh: &ChunkMesh) -> (Vec<(MeshVertex, usize)>, Vec<u32>) {
     let mut remap = vec![u32::MAX; mesh.vertices.len()];
     let mut used = Vec::new();
     let mut indices = Vec::new();
@@ -165,7 +224,7 @@ fn written(mesh: &ChunkMesh) -> (Vec<MeshVertex>, Vec<u32>) {
         for &v in tri {
             if remap[v as usize] == u32::MAX {
                 remap[v as usize] = used.len() as u32;
-                used.push(mesh.vertices[v as usize]);
+                used.push((mesh.vertices[v as usize], v as usize));
             }
             indices.push(remap[v as usize]);
         }

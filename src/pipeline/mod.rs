@@ -19,9 +19,9 @@ pub(crate) use schedule::chunk_tree;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::config::{Config, ConfigError};
+use crate::config::{Compress, Config, ConfigError, FLAT_FRAME_SHARE, Frame, Mesher};
 use crate::dem::{self, DemError, LoadOptions};
-use crate::geodesy::Placement;
+use crate::geodesy::{FrameKind, Globe, Placement};
 use crate::heightfield::{Crs, Heightfield, void_fill};
 use crate::mesh::MeshError;
 use crate::mesh::grid::Grid;
@@ -142,6 +142,9 @@ pub enum BuildError {
         /// The spacing in use, metres.
         spacing_m: [f64; 2],
     },
+    /// `frame = "curved"` for a grid that cannot be placed on the Earth.
+    #[error("frame = \"curved\": {0}")]
+    Frame(String),
     /// Writing failed.
     #[error("{path}: {source}")]
     Io {
@@ -158,7 +161,7 @@ impl BuildError {
         match self {
             BuildError::Dem(_) | BuildError::Config(_) | BuildError::OutputExists(_) => 2,
             BuildError::Output(e) => e.exit_code(),
-            BuildError::ThreadPool { .. } | BuildError::Extent { .. } => 2,
+            BuildError::ThreadPool { .. } | BuildError::Extent { .. } | BuildError::Frame(_) => 2,
             BuildError::LeafTooWide { .. } => 2,
             BuildError::Texture(TextureError::Encode { .. }) => 1,
             BuildError::Texture(_) => 2,
@@ -206,6 +209,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     extras.texture = texture;
     report.not_placed = not_placed(&hf);
     report.flat_frame_error = extras.placement.as_ref().and_then(|p| p.flat_frame_error.clone());
+    report.frame = extras.placement.as_ref().map_or(FrameKind::Flat, |p| p.frame);
     let doc = tileset_json(&tree, &records, &extras);
     // Compact: a client reads the whole index before it draws anything,
     // and indentation was four fifths of it. `jq . tileset.json` reads it.
@@ -275,15 +279,25 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
         source: Vec::new(),
         geoid: None,
         georef: hf.georef.clone(),
-        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| match &opts.geoid {
-            Some(model) => p.with_geoid(&dem::file_name(model)),
-            None => p,
+        placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| {
+            let p = if curved(hf, &opts.config) { p.curved() } else { p };
+            match &opts.geoid {
+                Some(model) => p.with_geoid(&dem::file_name(model)),
+                None => p,
+            }
         }),
         morph: MorphConvention {
             target: "parent".into(),
-            delta: "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \
-                    skirt bottom vertices have delta 0"
-                .into(),
+            delta: if curved(hf, &opts.config) {
+                "POSITION offset (x, y, z): base + delta lies on the parent chunk's surface as written, at the \
+                 point of the parent triangle with the vertex's grid barycentric coordinates; skirt bottom \
+                 vertices have delta 0"
+                    .into()
+            } else {
+                "POSITION y offset: base + delta lies on the parent chunk's surface; x and z offsets 0; \
+                 skirt bottom vertices have delta 0"
+                    .into()
+            },
             schedule: "blend weight toward the parent w = clamp(tau/rho - 1, 0, 1) keeps the screen error <= tau; \
                        Ulrich's t = clamp(2 rho/tau - 1, 0, 1) (w = 1 - t) can reach 9/8 tau"
                 .into(),
@@ -293,6 +307,34 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
                 minus delta(max(L-2, 0)): below any neighbour of level >= L-1 in any morph state"
             .into(),
     }
+}
+
+/// Whether the chunks of `hf` are written in the curved frame
+/// (`config::Frame`; a `curved` setting the grid cannot take is refused by
+/// [`globe`] first).
+pub(crate) fn curved(hf: &Heightfield, cfg: &Config) -> bool {
+    match cfg.frame {
+        Frame::Flat => false,
+        Frame::Curved => true,
+        Frame::Auto => {
+            cfg.mesher == Mesher::Rtin
+                && cfg.compress == Compress::None
+                && Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m)
+                    .ok()
+                    .and_then(|p| p.flat_frame_error)
+                    .is_some_and(|e| e.worst_m() > FLAT_FRAME_SHARE * cfg.max_error_m)
+        }
+    }
+}
+
+/// The curved frame's map of `hf`, where its chunks are written in it.
+pub(crate) fn globe(hf: &Heightfield, cfg: &Config) -> Result<Option<Globe>, BuildError> {
+    if !curved(hf, cfg) {
+        return Ok(None);
+    }
+    Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).map(Some).map_err(|why| {
+        BuildError::Frame(format!("{}: the grid cannot be placed on the Earth: {why}", hf.source))
+    })
 }
 
 /// Each worker's stack as std gives it (2 MiB) and the signal stack std

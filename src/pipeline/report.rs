@@ -119,6 +119,8 @@ pub struct Report {
     /// How far the root transform draws the planar grid from its place on
     /// the ellipsoid (placed grids only).
     pub flat_frame_error: Option<crate::geodesy::FlatFrameError>,
+    /// The frame the chunks are written in (`config::Frame`).
+    pub frame: crate::geodesy::FrameKind,
 }
 
 /// A chunk whose error as written is beyond its δ.
@@ -291,13 +293,13 @@ impl Report {
     /// The warning for a placed grid whose planar frame puts some sample
     /// farther from its place on the ellipsoid than the leaf δ.
     pub fn flat_frame_warning(&self) -> Option<String> {
-        let e = self.flat_frame_error.as_ref()?;
+        let e = self.flat_frame_error.as_ref().filter(|_| self.frame == crate::geodesy::FrameKind::Flat)?;
         let leaf = self.levels.last()?.delta_m;
         (e.worst_m() > leaf).then(|| {
             format!(
                 "warning: the tileset is planar, and a 3D Tiles client draws it up to {:.1} m off the ellipsoid \
-                 (row {}, column {}), more than the leaf δ {leaf} m: a grid this large needs a curved frame, \
-                 which terrachunk does not write (README, Limitations)",
+                 (row {}, column {}), more than the leaf δ {leaf} m: a grid this large needs the curved frame \
+                 (--frame curved, with --mesher rtin and --compress none)",
                 e.worst_m(),
                 e.at[0],
                 e.at[1]
@@ -374,13 +376,20 @@ impl std::fmt::Display for Summary<'_> {
                 }
             }
         }
-        if let Some(e) = &r.flat_frame_error {
-            writeln!(
+        match (&r.flat_frame_error, r.frame) {
+            (Some(e), crate::geodesy::FrameKind::Curved) => writeln!(
+                f,
+                "on the globe: curved, every vertex at its WGS 84 position (a planar frame would have drawn \
+                 samples up to {:.3} m along the ellipsoid normal and {:.3} m across it from their places)",
+                e.vertical_m, e.horizontal_m
+            )?,
+            (Some(e), _) => writeln!(
                 f,
                 "on the globe: planar, drawn up to {:.3} m along the ellipsoid normal and {:.3} m across it from \
                  the samples' places",
                 e.vertical_m, e.horizontal_m
-            )?;
+            )?,
+            (None, _) => {}
         }
         let s = &r.seconds;
         writeln!(f, "{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display())?;

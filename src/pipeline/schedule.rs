@@ -224,6 +224,7 @@ pub(super) fn build_levels(
     let normals = (cfg.normal_map && colour.is_some()).then(|| NormalSource::new(grid, hf.spacing_m));
     let texturer = colour.map(|c| Texturer::new(c, normals.as_ref(), tree, hf.spacing_m, cfg));
     let quantization = cfg.compress.quantizes().then(|| Quantization::plan(hf, tree, cfg.max_error_m)).transpose()?;
+    let globe = super::globe(hf, cfg)?;
     let t = Instant::now();
     let step = quantization.as_ref().map(|q| q.step_y_m);
     let own;
@@ -252,6 +253,7 @@ pub(super) fn build_levels(
         texturer: texturer.as_ref(),
         lone_parts,
         rtin,
+        globe: globe.as_ref(),
         part,
         timers: Timers {
             mesh: AtomicU64::new(0),
@@ -382,6 +384,8 @@ pub(super) struct Run<'a> {
     pub(super) lone_parts: bool,
     /// The bintree's error field, where it meshes the chunks.
     pub(super) rtin: Option<&'a Rtin>,
+    /// The curved frame's map, where the chunks are written in it.
+    pub(super) globe: Option<&'a crate::geodesy::Globe>,
     /// One job's part of the tree (a sharded build), or the whole tree.
     pub(super) part: Option<&'a TreePart>,
     pub(super) timers: Timers,

@@ -35,6 +35,7 @@
 
 mod border;
 mod checks;
+mod curved;
 mod inspect;
 mod morph;
 mod read;
@@ -60,6 +61,7 @@ use crate::output::tileset::TilesetExtras;
 use crate::quadtree::ChunkKey;
 use border::{border_record, compare_border};
 use checks::{check_error, snap_error};
+use curved::{Curved, CurvedChunk};
 use morph::{ParentSurface, check_morph};
 use texture::{Texel, check_texture, compare_seam, seam_tolerance};
 use tree::{Index, check_transform, check_tree, content_in_box};
@@ -118,6 +120,9 @@ pub struct VerifyReport {
     /// the ellipsoid, measured from the transform in the file (absent when
     /// the tileset has none).
     pub flat_frame_error: Option<crate::geodesy::FlatFrameError>,
+    /// The tileset is written in the curved frame, and each level's error
+    /// was measured along the ellipsoid normal in ECEF.
+    pub curved: bool,
 }
 
 /// What verify measured of the texture tiles.
@@ -211,6 +216,13 @@ pub fn verify_with_progress(
         return Ok(report);
     }
     report.flat_frame_error = check_transform(&ts, &hf, &mut report.failures);
+    let curved = match Curved::of(&ts, &hf) {
+        Ok(c) => c,
+        Err(why) => {
+            report.failures.push(format!("tileset.json: {why}"));
+            return Ok(report);
+        }
+    };
 
     // Down the tree, each chunk read once and checked against its parent
     // (error, coverage, morph, texture), then dropped but for what its
@@ -219,7 +231,8 @@ pub fn verify_with_progress(
     // chunk's footprint, and level by level each chunk's findings in key
     // order, then the borders between same-level neighbours.
     let bar = crate::progress::bar(progress, index.tiles.len() as u64, "chunks");
-    let walk = Walk { dir, hf: &hf, extras: &extras, index: &index, bar: &bar };
+    report.curved = curved.is_some();
+    let walk = Walk { dir, hf: &hf, extras: &extras, index: &index, bar: &bar, curved: curved.as_ref() };
     let found: Vec<Visited> = index.roots().par_iter().flat_map_iter(|&k| walk.visit(k, Parent::None)).collect();
     bar.finish_and_clear();
     let footprints = found.iter().filter_map(|v| v.footprint.map(|f| (v.key, f))).collect();
@@ -282,6 +295,8 @@ struct Walk<'a> {
     extras: &'a TilesetExtras,
     index: &'a Index,
     bar: &'a indicatif::ProgressBar,
+    /// The map of a tileset written in the curved frame.
+    curved: Option<&'a Curved>,
 }
 
 impl Walk<'_> {
@@ -290,41 +305,52 @@ impl Walk<'_> {
     fn visit(&self, k: ChunkKey, parent: Parent) -> Vec<Visited> {
         let uri = crate::output::tileset::tile_uri(k);
         let file = read_tile(self.dir, &uri).and_then(|bytes| parse_chunk(&self.dir.join(&uri), &bytes));
+        // In the curved frame the checks read the chunk in grid space, and
+        // its written surface in ECEF beside it.
+        let bent: Option<Result<(ChunkFile, CurvedChunk), String>> = match (&file, self.curved) {
+            (Ok(c), Some(cv)) if checks::finite(c) => Some(cv.unbend(c)),
+            _ => None,
+        };
+        let (flat, ecef) = match &bent {
+            Some(Ok((f, e))) => (Some(f), Some(e)),
+            _ => (file.as_ref().ok(), None),
+        };
         let kids = &self.index.tiles[&k].children;
         // A parent whose positions are not all finite has no surface to
         // check its children's targets against (its own failure says why).
-        let surface = match &file {
-            Ok(c) if !kids.is_empty() && checks::finite(c) => Some(ParentSurface::new(c, self.extras.spacing_m)),
+        let surface = match flat {
+            Some(c) if !kids.is_empty() && checks::finite(c) => {
+                Some(ParentSurface::new(c, self.extras.spacing_m).with_curved(ecef))
+            }
             _ => None,
         };
         let kids_parent = surface.as_ref().map_or(Parent::Unreadable, Parent::Read);
         let mut out: Vec<Visited> = kids.par_iter().flat_map_iter(|&kid| self.visit(kid, kids_parent)).collect();
-        out.push(match &file {
-            Ok(c) => {
-                let read = (c.key != k).then(|| format!("chunk {}: node extras say {:?}", name(k), c.key));
-                let checked = Some(self.check(k, c, parent));
-                Visited {
-                    key: k,
-                    read: read.into_iter().collect(),
-                    checked,
-                    borders: Some(border_record(c)),
-                    footprint: Some(c.footprint),
+        out.push(match (&file, flat) {
+            (Ok(c), Some(f)) => {
+                let mut read: Vec<String> =
+                    (c.key != k).then(|| format!("chunk {}: node extras say {:?}", name(k), c.key)).into_iter().collect();
+                if let Some(Err(why)) = &bent {
+                    read.push(format!("chunk {}: {why}", name(k)));
                 }
+                let checked = Some(self.check(k, c, f, ecef, parent));
+                Visited { key: k, read, checked, borders: Some(border_record(f)), footprint: Some(c.footprint) }
             }
-            Err(e) => Visited {
+            (Err(e), _) => Visited {
                 key: k,
                 read: vec![format!("chunk {}: {e}", name(k))],
                 checked: None,
                 borders: None,
                 footprint: None,
             },
+            (Ok(_), None) => unreachable!("a read chunk is its own grid-space view"),
         });
         self.bar.inc(1);
         out
     }
 
     /// Error, coverage and morph of one chunk (against its parent), and its texture.
-    fn check(&self, k: ChunkKey, c: &ChunkFile, parent: Parent) -> Findings {
+    fn check(&self, k: ChunkKey, c: &ChunkFile, flat: &ChunkFile, ecef: Option<&CurvedChunk>, parent: Parent) -> Findings {
         let extras = self.extras;
         let mut problems = Vec::new();
         let tile = &self.index.tiles[&k];
@@ -345,15 +371,22 @@ impl Walk<'_> {
         }
         checks::normals(c, &mut problems);
         let has_children = !tile.children.is_empty();
-        let err = check_error(self.hf, c, extras.spacing_m, &mut problems);
-        if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m {
+        let planar = check_error(self.hf, flat, extras.spacing_m, &mut problems);
+        let err = match (self.curved, ecef) {
+            (Some(cv), Some(e)) => cv.check_error(self.hf, flat, e, c.delta_m, &mut problems),
+            _ => planar,
+        };
+        if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m + ecef.map_or(0.0, |e| e.rounding_m) {
             problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
         }
         let gap = match parent {
-            Parent::Read(p) => check_morph(c, p, extras.spacing_m, &mut problems),
+            Parent::Read(p) => match (self.curved, ecef, p.curved()) {
+                (Some(cv), Some(e), Some(pe)) => cv.check_morph(flat, e, p, pe, &mut problems),
+                _ => check_morph(c, p, extras.spacing_m, &mut problems),
+            },
             Parent::Unreadable => 0.0,
             Parent::None => {
-                let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+                let m = c.surface.morph_dy.iter().fold(0.0f64, |a, d| a.max(d.abs())).max(c.surface.largest_dxz());
                 if m > 0.0 {
                     problems.push(format!("top-level chunk has nonzero morph deltas (up to {m} m)"));
                 }
@@ -363,9 +396,9 @@ impl Walk<'_> {
         if !c.morph_contract {
             problems.push("mesh.weights is not [0] or targetNames is not [\"parent\"]".into());
         }
-        let texel = extras.texture.as_ref().and_then(|tx| check_texture(c, extras, tx, &mut problems));
-        let plan: Vec<[f64; 2]> = c.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
-        let shape = quality::summarize(&plan, &c.surface.triangles);
+        let texel = extras.texture.as_ref().and_then(|tx| check_texture(flat, extras, tx, &mut problems));
+        let plan: Vec<[f64; 2]> = flat.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
+        let shape = quality::summarize(&plan, &flat.surface.triangles);
         Findings { delta_m: c.delta_m, error_m: err, morph_gap_m: gap, texel, shape, problems }
     }
 }

@@ -4,6 +4,7 @@
 //! promise 3).
 
 use super::name;
+use super::curved::CurvedChunk;
 use super::read::ChunkFile;
 use crate::mesh::MeshVertex;
 use crate::mesh::locate::{LocatorIndex, SurfaceLocator, barycentric};
@@ -17,17 +18,38 @@ pub(super) struct ParentSurface<'a> {
     file: &'a ChunkFile,
     verts: Vec<MeshVertex>,
     index: LocatorIndex,
+    /// Its written surface in ECEF, for a tileset in the curved frame.
+    curved: Option<&'a CurvedChunk>,
 }
 
 impl<'a> ParentSurface<'a> {
     pub(super) fn new(file: &'a ChunkFile, spacing: [f64; 2]) -> Self {
         let verts = file.surface.grid_vertices(spacing);
         let index = LocatorIndex::new(&verts, &file.surface.triangles);
-        ParentSurface { file, verts, index }
+        ParentSurface { file, verts, index, curved: None }
     }
 
-    fn locator(&self) -> SurfaceLocator<'_> {
+    /// The same, with the parent's written surface in ECEF.
+    pub(super) fn with_curved(self, curved: Option<&'a CurvedChunk>) -> Self {
+        ParentSurface { curved, ..self }
+    }
+
+    pub(super) fn curved(&self) -> Option<&'a CurvedChunk> {
+        self.curved
+    }
+
+    pub(super) fn locator(&self) -> SurfaceLocator<'_> {
         SurfaceLocator::with_index(&self.verts, &self.file.surface.triangles, &self.index)
+    }
+
+    /// Triangle `t`'s corners.
+    pub(super) fn triangle(&self, t: u32) -> [u32; 3] {
+        self.file.surface.triangles[t as usize]
+    }
+
+    /// Vertex `v` in grid units.
+    pub(super) fn vertex(&self, v: u32) -> MeshVertex {
+        self.verts[v as usize]
     }
 }
 
@@ -115,7 +137,7 @@ pub(super) fn check_morph(c: &ChunkFile, parent: &ParentSurface, spacing: [f64; 
             name(p.key)
         ));
     }
-    if c.surface.morph_dxz != 0.0 {
+    if c.surface.largest_dxz() != 0.0 {
         problems.push("morph target has nonzero x/z deltas".into());
     }
     gap

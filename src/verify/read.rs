@@ -76,8 +76,8 @@ pub struct Prim {
     pub positions: Vec<[f64; 3]>,
     /// Morph target y deltas, metres (x and z deltas must be 0).
     pub morph_dy: Vec<f64>,
-    /// Largest |x| or |z| morph delta found (must be 0).
-    pub morph_dxz: f64,
+    /// Morph target x and z deltas, metres (0 in the flat frame).
+    pub morph_xz: Vec<[f64; 2]>,
     /// Triangles.
     pub triangles: Vec<[u32; 3]>,
     /// Largest |local coordinate| per axis (x, y, z), metres: sets the f32
@@ -93,6 +93,16 @@ pub struct Prim {
 }
 
 impl Prim {
+    /// The x and z morph delta of vertex `k`.
+    pub fn morph_dxz_at(&self, k: usize) -> [f64; 2] {
+        self.morph_xz.get(k).copied().unwrap_or([0.0; 2])
+    }
+
+    /// The largest |x| or |z| morph delta (0 in the flat frame).
+    pub fn largest_dxz(&self) -> f64 {
+        self.morph_xz.iter().fold(0.0, |m, d| m.max(d[0].abs()).max(d[1].abs()))
+    }
+
     /// The positions in grid coordinates (column, row) with their heights.
     /// A coordinate within f32 rounding of a whole sample index is that
     /// index: the vertex is the sample. Unsnapped, steep ground turns the
@@ -318,7 +328,7 @@ pub fn parse_chunk(path: &Path, bytes: &[u8]) -> Result<ChunkFile, VerifyError> 
             normals,
             positions: local.iter().map(|l| [0, 1, 2].map(|a| translation[a] + on_steps(l[a], a))).collect(),
             morph_dy: deltas.iter().map(|d| f64::from(d[1])).collect(),
-            morph_dxz: deltas.iter().map(|d| d[0].abs().max(d[2].abs())).fold(0.0f32, f32::max).into(),
+            morph_xz: deltas.iter().map(|d| [f64::from(d[0]), f64::from(d[2])]).collect(),
             triangles: tris.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
             local_extent: [0, 1, 2].map(|a| local.iter().map(|l| f64::from(l[a].abs())).fold(0.0, f64::max)),
         };

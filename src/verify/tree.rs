@@ -248,7 +248,12 @@ pub(super) fn content_in_box(c: &ChunkFile, bbox: &Obb) -> Option<String> {
 /// gives, and measures how far it draws the planar grid from the
 /// ellipsoid: the extras must not state less.
 pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<String>) -> Option<FlatFrameError> {
-    let want = Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| p.transform());
+    let placed = Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok();
+    let curved = ts["extras"]["terrachunk"]["placement"]["frame"] == "curved";
+    let want = placed.clone().map(|p| if curved { p.curved() } else { p }.transform());
+    // What the planar frame is measured by: its own transform, also for a
+    // curved tileset (the extras state what the curved frame saved).
+    let flat = placed.map(|p| p.transform());
     let got = &ts["root"]["transform"];
     match (want, got.as_array()) {
         (None, None) => None,
@@ -269,7 +274,7 @@ pub(super) fn check_transform(ts: &Value, hf: &Heightfield, failures: &mut Vec<S
                 ));
                 return None;
             }
-            let g: [f64; 16] = g.try_into().expect("16 values");
+            let g: [f64; 16] = if curved { flat.expect("placed") } else { g.try_into().expect("16 values") };
             let measured = FlatFrameError::measure(&hf.georef, hf.width, hf.height, hf.spacing_m, &g)?;
             let stated = &ts["extras"]["terrachunk"]["placement"]["flat_frame_error"];
             let stated_m = [&stated["vertical_m"], &stated["horizontal_m"]].map(|v| v.as_f64().map(f64::abs));

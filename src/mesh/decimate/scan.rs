@@ -463,5 +463,6 @@ pub(super) fn finish(
         relief_m,
         scans: seeds,
         locator_index: Default::default(),
+        parent_points: Vec::new(),
     }
 }

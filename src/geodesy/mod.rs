@@ -36,6 +36,9 @@
 //! datum's Helmert shift is as good as its published parameters (ETRS89 and
 //! NAD83 are taken as WGS 84, 1–2 m apart).
 
+mod globe;
+
+pub use globe::{Globe, MIN_RADIUS_M, geodetic, up};
 use proj4rs::Proj;
 use serde::{Deserialize, Serialize};
 
@@ -81,6 +84,32 @@ pub struct Placement {
     /// where its samples are on the ellipsoid.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flat_frame_error: Option<FlatFrameError>,
+    /// How the chunks are written: planar in grid metres (absent), or
+    /// curved, every vertex at its WGS 84 position ([`Globe`]).
+    #[serde(default, skip_serializing_if = "FrameKind::is_flat")]
+    pub frame: FrameKind,
+}
+
+/// The frame a placed tileset's chunks are written in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameKind {
+    /// Grid metres on the tangent plane at the grid centre (world x =
+    /// column · s_x, z = row · s_z, y = height); the root transform holds
+    /// the projection's derivative there.
+    #[default]
+    Flat,
+    /// Every vertex at the WGS 84 position of its grid point and height,
+    /// in the east-north-up frame at the grid centre (shifted so that the
+    /// centre keeps its flat place); the root transform is that frame's.
+    /// Morph deltas are then 3-vectors.
+    Curved,
+}
+
+impl FrameKind {
+    fn is_flat(&self) -> bool {
+        *self == FrameKind::Flat
+    }
 }
 
 /// The largest distance between a sample as a client draws it (its
@@ -284,9 +313,26 @@ impl Placement {
                  ellipsoid), {NO_GEOID}"
             ),
             flat_frame_error: None,
+            frame: FrameKind::Flat,
         };
         placement.flat_frame_error = FlatFrameError::measure(georef, width, height, spacing_m, &placement.transform());
         Ok(placement)
+    }
+
+    /// The placement of the same grid written in the curved frame
+    /// ([`Globe`]): the transform is the ENU frame at the centre alone.
+    pub fn curved(mut self) -> Placement {
+        self.enu_per_tileset_m = [[1.0, 0.0], [0.0, 1.0]];
+        self.frame = FrameKind::Curved;
+        let planar = self.method.find("; the tileset stays planar").unwrap_or(self.method.len());
+        let rest = self.method[planar..].split_once("), ").map_or("", |(_, r)| r).to_string();
+        let how = &self.method[..planar];
+        let how = how.split_once("; root transform").map_or(how, |(h, _)| h);
+        self.method = format!(
+            "{how}; curved: every vertex at the WGS 84 position of its grid point and height, in the ENU frame \
+             at the grid centre (root transform = that frame x translation by -centre), {rest}"
+        );
+        self
     }
 
     /// The placement of a grid whose heights had the undulation of the
@@ -404,6 +450,15 @@ impl SourceCrs {
     pub fn to_wgs84(&self, p: [f64; 2]) -> Option<(f64, f64)> {
         let (lat, lon) = self.to_wgs84_radians(p)?;
         Some((lat.to_degrees(), lon.to_degrees()))
+    }
+
+    /// The source point `[x, y]` of a WGS 84 latitude and longitude,
+    /// degrees: the inverse of [`SourceCrs::to_wgs84`].
+    pub fn from_wgs84(&self, lat_deg: f64, lon_deg: f64) -> Option<[f64; 2]> {
+        let mut q = (lon_deg.to_radians(), lat_deg.to_radians(), 0.0);
+        proj4rs::transform::transform(&self.wgs84, &self.proj, &mut q).ok()?;
+        let p = if self.geographic { [q.0.to_degrees(), q.1.to_degrees()] } else { [q.0, q.1] };
+        p.iter().all(|v| v.is_finite()).then_some(p)
     }
 
     fn to_wgs84_radians(&self, p: [f64; 2]) -> Option<(f64, f64)> {

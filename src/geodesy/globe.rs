@@ -1,0 +1,220 @@
+//! The curved frame: every vertex of a chunk at the WGS 84 position of its
+//! grid point and height, in the east-north-up frame at the grid centre
+//! (the frame the root `transform` takes to ECEF with no scale or shear).
+//!
+//! A flat chunk triangle between three such vertices is a chord of the
+//! curved surface, so it sags below the surface the grid heights describe;
+//! the mesher keeps that sag inside δ ([`Globe::margin_m`]) and `verify`
+//! measures the result along the ellipsoid normal at every sample.
+
+use super::{EnuFrame, NotPlaced, SourceCrs, distance, ecef, probe_samples};
+use crate::heightfield::Georef;
+
+/// The smallest radius of curvature of the WGS 84 ellipsoid: the meridian's
+/// at the equator, a(1 − e²), metres.
+pub const MIN_RADIUS_M: f64 = 6_335_439.327;
+
+/// The grid-to-Earth map of a placed grid, as the chunks are written in
+/// the curved frame.
+pub struct Globe {
+    source: SourceCrs,
+    origin: [f64; 2],
+    step: [f64; 2],
+    /// Longitude and latitude are the grid's own degrees (a WGS 84
+    /// geographic grid): no projection library call per vertex.
+    degrees: bool,
+    frame: EnuFrame,
+    /// World x and z (glTF, metres) of the grid centre.
+    centre: [f64; 2],
+    /// Longitude and latitude of the grid centre, degrees.
+    pub lon_lat: [f64; 2],
+    /// A bound on the second derivative of [`Globe::world`] with respect to
+    /// grid metres (x = column · s_x, z = row · s_z), 1/m: the Earth's
+    /// curvature and the projection's own bending together.
+    pub curvature: f64,
+}
+
+impl Globe {
+    /// The map of the `width` × `height` grid of `georef`, whose samples the
+    /// tileset puts `spacing_m` apart; refused where the CRS is unknown or
+    /// some sample on its border or inside does not come back as a point on
+    /// the Earth.
+    pub fn of_grid(georef: &Georef, width: usize, height: usize, spacing_m: [f64; 2]) -> Result<Globe, NotPlaced> {
+        let source = SourceCrs::of(&georef.crs, georef.definition.as_deref())?;
+        let (ci, cj) = ((height - 1) as f64 / 2.0, (width - 1) as f64 / 2.0);
+        let src = [georef.origin[0] + georef.step[0] * cj, georef.origin[1] + georef.step[1] * ci];
+        let name = source.name.clone();
+        let off = || NotPlaced::OffTheEarth { name: name.clone(), x: src[0], y: src[1] };
+        let (lat, lon) = source.to_wgs84(src).ok_or_else(off)?;
+        // As `Placement::of_grid` decides: a geographic grid whose datum moves
+        // it by less than a millimetre keeps its own degrees.
+        let degrees = source.geographic && distance(ecef(lat, lon, 0.0), ecef(src[1], src[0], 0.0)) < 1e-3;
+        let (lat, lon) = if degrees { (src[1], src[0]) } else { (lat, lon) };
+        let mut globe = Globe {
+            source,
+            origin: georef.origin,
+            step: georef.step,
+            degrees,
+            frame: EnuFrame::new(lat, lon),
+            centre: [cj * spacing_m[0], ci * spacing_m[1]],
+            lon_lat: [lon, lat],
+            curvature: 0.0,
+        };
+        for (i, j) in probe_samples(width, height) {
+            if globe.lat_lon(j as f64, i as f64).is_none() {
+                return Err(off());
+            }
+        }
+        globe.curvature = globe.measure_curvature(width, height, spacing_m);
+        Ok(globe)
+    }
+
+    /// Latitude and longitude, degrees, of grid point (column `j`, row `i`).
+    pub fn lat_lon(&self, j: f64, i: f64) -> Option<(f64, f64)> {
+        let src = [self.origin[0] + self.step[0] * j, self.origin[1] + self.step[1] * i];
+        if self.degrees {
+            return (src[1].abs() <= 90.0).then_some((src[1], src[0]));
+        }
+        self.source.to_wgs84(src)
+    }
+
+    /// World position (glTF: x east, y up, z south, metres, in the ENU frame
+    /// at the grid centre shifted so that the centre keeps its flat place)
+    /// of grid point (`j`, `i`) at ellipsoidal height `h`; NaN where the
+    /// projection has no inverse there.
+    pub fn world(&self, j: f64, i: f64, h: f64) -> [f64; 3] {
+        let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
+        let enu = self.frame.enu(ecef(lat, lon, h));
+        [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
+    }
+
+    /// The east, up and south unit vectors at grid point (`j`, `i`), in
+    /// world coordinates: what a flat-frame normal is expressed in there.
+    pub fn axes(&self, j: f64, i: f64) -> [[f64; 3]; 3] {
+        let Some((lat, lon)) = self.lat_lon(j, i) else { return [[f64::NAN; 3]; 3] };
+        let local = EnuFrame::new(lat, lon).axes;
+        let world = |v: [f64; 3]| {
+            let [e, n, u] = self.frame.axes.map(|a| a[0] * v[0] + a[1] * v[1] + a[2] * v[2]);
+            [e, u, -n]
+        };
+        let [east, north, up] = local.map(world);
+        [east, up, north.map(|c| -c)]
+    }
+
+    /// How far, at most, a chunk triangle written between the world
+    /// positions of its corners strays from the surface its grid heights
+    /// describe, along the normal, for a triangle whose longest side is
+    /// `longest_m` grid metres and whose planar slope is `slope`: linear
+    /// interpolation of a map with second derivative κ misses it by
+    /// κ·r²/2 (r the radius of the smallest circle holding the triangle,
+    /// at most longest/√3); heights add 2·slope/R to κ (the normal turns
+    /// by 1/R per metre), and the miss's sideways part moves a sloping
+    /// surface by slope times it.
+    pub fn margin_m(&self, longest_m: f64, slope: f64) -> f64 {
+        longest_m * longest_m / 6.0 * (self.curvature + 2.0 * slope / MIN_RADIUS_M) * (1.0 + slope)
+    }
+
+    /// The largest second derivative of `world` (at height 0) over a 9 × 9
+    /// lattice of the grid, by second differences a sixteenth of the
+    /// grid's narrower side apart, with a quarter more for what lies
+    /// between lattice points and heights up to 10 km.
+    fn measure_curvature(&self, width: usize, height: usize, spacing_m: [f64; 2]) -> f64 {
+        let extent = [(width - 1) as f64 * spacing_m[0], (height - 1) as f64 * spacing_m[1]];
+        let d = (extent[0].min(extent[1]) / 16.0).max(1e-3);
+        let f = |x: f64, z: f64| self.world(x / spacing_m[0], z / spacing_m[1], 0.0);
+        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let mut worst: f64 = 0.0;
+        for a in 0..9 {
+            for b in 0..9 {
+                let at = |t: f64, e: f64| if e > 2.0 * d { d + t * (e - 2.0 * d) } else { e / 2.0 };
+                let (x, z) = (at(a as f64 / 8.0, extent[0]), at(b as f64 / 8.0, extent[1]));
+                let (dx, dz) = (d.min(x.max(extent[0] - x)), d.min(z.max(extent[1] - z)));
+                let (dx, dz) = (dx.max(1e-3), dz.max(1e-3));
+                let c = f(x, z);
+                let second = |p: [f64; 3], q: [f64; 3], s: f64| norm([0, 1, 2].map(|k| (p[k] + q[k] - 2.0 * c[k]) / (s * s)));
+                let xx = second(f(x + dx, z), f(x - dx, z), dx);
+                let zz = second(f(x, z + dz), f(x, z - dz), dz);
+                let (pp, pm, mp, mm) = (f(x + dx, z + dz), f(x + dx, z - dz), f(x - dx, z + dz), f(x - dx, z - dz));
+                let xz = norm([0, 1, 2].map(|k| (pp[k] - pm[k] - mp[k] + mm[k]) / (4.0 * dx * dz)));
+                // The largest |Q(u)| over unit u of a quadratic form whose
+                // coefficients are bounded by xx, zz and xz.
+                let lambda = (xx + zz) / 2.0 + (((xx - zz) / 2.0).powi(2) + xz * xz).sqrt();
+                if lambda.is_finite() {
+                    worst = worst.max(lambda);
+                }
+            }
+        }
+        worst.max(1.0 / MIN_RADIUS_M) * 1.25 * (1.0 + 1e4 / MIN_RADIUS_M)
+    }
+}
+
+/// WGS 84 latitude, longitude (degrees) and ellipsoidal height of an ECEF
+/// point (Bowring's iteration, to well under a micrometre near the Earth).
+pub fn geodetic(p: [f64; 3]) -> (f64, f64, f64) {
+    let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+    let a = super::WGS84_A;
+    let lon = p[1].atan2(p[0]);
+    let r = p[0].hypot(p[1]);
+    let mut lat = p[2].atan2(r * (1.0 - e2));
+    for _ in 0..8 {
+        let (s, c) = lat.sin_cos();
+        let n = a / (1.0 - e2 * s * s).sqrt();
+        let h = r * c + p[2] * s - a * (1.0 - e2 * s * s).sqrt();
+        lat = p[2].atan2(r * (1.0 - e2 * n / (n + h)));
+    }
+    let (s, c) = lat.sin_cos();
+    let h = r * c + p[2] * s - a * (1.0 - e2 * s * s).sqrt();
+    (lat.to_degrees(), lon.to_degrees(), h)
+}
+
+/// The unit normal of the ellipsoid (ECEF) at a latitude/longitude, degrees.
+pub fn up(lat_deg: f64, lon_deg: f64) -> [f64; 3] {
+    EnuFrame::new(lat_deg, lon_deg).axes[2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::heightfield::Crs;
+
+    fn geographic(origin: [f64; 2], step: f64, n: usize) -> (Georef, [f64; 2]) {
+        let g = Georef { crs: Crs::Geographic { epsg: Some(4326) }, origin, step: [step, -step], local_tangent: None, definition: None };
+        let lat0 = origin[1] - step * (n - 1) as f64 / 2.0;
+        let (mx, mz) = crate::heightfield::metres_per_degree(lat0);
+        (g, [step * mx, step * mz])
+    }
+
+    #[test]
+    fn geodetic_undoes_ecef() {
+        for (lat, lon, h) in [(0.0, 0.0, 0.0), (45.5, -122.3, 2500.0), (-89.9, 170.0, -400.0), (89.99, -179.9, 8000.0)] {
+            let (la, lo, hh) = geodetic(ecef(lat, lon, h));
+            assert!((la - lat).abs() < 1e-11 && (lo - lon).abs() < 1e-9 && (hh - h).abs() < 1e-6, "{la} {lo} {hh}");
+        }
+    }
+
+    #[test]
+    fn the_centre_keeps_its_flat_place_and_the_frame_is_the_earth() {
+        let (g, s) = geographic([-10.0, 20.0], 0.5, 81);
+        let globe = Globe::of_grid(&g, 81, 81, s).unwrap();
+        let c = globe.world(40.0, 40.0, 0.0);
+        assert!((c[0] - 40.0 * s[0]).abs() < 1e-6 && c[1].abs() < 1e-6 && (c[2] - 40.0 * s[1]).abs() < 1e-6, "{c:?}");
+        // Two corners 40° apart are their true chord apart, and a height
+        // moves a point along the ellipsoid normal there.
+        let (a, b) = (globe.world(0.0, 0.0, 0.0), globe.world(80.0, 80.0, 0.0));
+        let truth = distance(ecef(20.0, -10.0, 0.0), ecef(-20.0, 30.0, 0.0));
+        assert!((distance(a, b) - truth).abs() < 1e-6, "{} against {truth}", distance(a, b));
+        let up = globe.axes(0.0, 0.0)[1];
+        let lifted = globe.world(0.0, 0.0, 1000.0);
+        assert!((0..3).all(|k| (lifted[k] - a[k] - 1000.0 * up[k]).abs() < 1e-6));
+    }
+
+    #[test]
+    fn curvature_is_the_earth_s_on_a_small_grid_and_more_where_degrees_shear() {
+        let (g, s) = geographic([7.0, 46.01], 1e-4, 101);
+        let small = Globe::of_grid(&g, 101, 101, s).unwrap().curvature;
+        assert!(small > 1.0 / 6.4e6 && small < 1.5 / 6.3e6, "{small}");
+        let (g, s) = geographic([0.0, 80.0], 0.1, 201);
+        let north = Globe::of_grid(&g, 201, 201, s).unwrap().curvature;
+        assert!(north > 2.0 * small, "{north} against {small}");
+    }
+}
