@@ -420,7 +420,8 @@ fn the_flat_frames_distance_from_the_ellipsoid_is_stated_measured_and_warned_abo
     // 2° × 2° at 40° N, sample centres from 106° W, 39° N.
     let dem = geographic_asc(tmp.path(), "wide", (41, 41), (-106.0, 39.0), 0.05);
     let out = tmp.path().join("out");
-    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", "none"]);
+    let args = ["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--texture", "none", "--frame", "flat"];
+    let o = cli(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let ts = tileset(&out);
     let stated = &ts["extras"]["terrachunk"]["placement"]["flat_frame_error"];
@@ -535,5 +536,215 @@ fn a_grid_touching_the_pole_builds_places_and_verifies() {
     assert!((p["lat_deg"].as_f64().unwrap() - 89.925).abs() < 1e-9, "{p}");
     let e = &p["flat_frame_error"];
     assert!(e["vertical_m"].as_f64().unwrap().is_finite() && e["horizontal_m"].as_f64().unwrap() > 0.0, "{e}");
+    crate::common::verified_against(&out, &[dem]);
+}
+
+/// Every surface vertex of every leaf of a curved tileset of a geographic
+/// ASCII grid (`west`, `north` the centre of sample (0, 0), `cell`
+/// degrees), taken to ECEF as a client does (node translation + POSITION,
+/// y-up to z-up, the root transform), against the ECEF point of the grid
+/// sample at its latitude, longitude and DEM height, computed here. Returns
+/// the worst distance along the ellipsoid normal and across it, and the
+/// vertices compared.
+fn curved_leaf_vertices_against_their_samples(
+    out: &Path,
+    dem: &Path,
+    (west, north, cell): (f64, f64, f64),
+) -> (f64, f64, usize) {
+    let ts = tileset(out);
+    let text = std::fs::read_to_string(dem).unwrap();
+    let heights: Vec<Vec<f64>> =
+        text.lines().skip(5).map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect()).collect();
+    let (mut along, mut across, mut n) = (0.0f64, 0.0f64, 0);
+    let mut stack = vec![&ts["root"]];
+    while let Some(tile) = stack.pop() {
+        let kids = tile["children"].as_array().map(|k| k.iter().collect::<Vec<_>>()).unwrap_or_default();
+        if kids.is_empty() && tile.get("content").is_some() {
+            let uri = tile["content"]["uri"].as_str().unwrap();
+            let c = terrachunk::verify::read_chunk(&out.join(uri)).unwrap();
+            for p in &c.surface.positions {
+                let e = apply(&ts, [p[0], -p[2], p[1]]);
+                let (lat, lon) = wgs84_of_ecef(e);
+                let (i, j) = (((north - lat) / cell).round(), ((lon - west) / cell).round());
+                let h = heights[i as usize][j as usize];
+                let truth = ecef_on(WGS84, north - i * cell, west + j * cell, h);
+                let d = [0, 1, 2].map(|r| e[r] - truth[r]);
+                let (sp, cp) = (north - i * cell).to_radians().sin_cos();
+                let (sl, cl) = (west + j * cell).to_radians().sin_cos();
+                let up = [cp * cl, cp * sl, sp];
+                let a = d[0] * up[0] + d[1] * up[1] + d[2] * up[2];
+                along = along.max(a.abs());
+                across = across.max((distance(d, [0.0; 3]).powi(2) - a * a).max(0.0).sqrt());
+                n += 1;
+            }
+        }
+        stack.extend(kids);
+    }
+    (along, across, n)
+}
+
+#[test]
+fn a_40_degree_grid_is_curved_and_verified_along_the_ellipsoid_normal() {
+    // 40° × 40° from 20° W, 50° N to 20° E, 10° N: 513² samples 0.078° apart.
+    let tmp = tempfile::tempdir().unwrap();
+    let cell = 40.0 / 512.0;
+    let dem = geographic_asc(tmp.path(), "wide", (513, 513), (-20.0, 10.0), cell);
+    let out = tmp.path().join("out");
+    let o =
+        cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--max-error", "20", "--texture", "none"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ts = tileset(&out);
+    let p = &ts["extras"]["terrachunk"]["placement"];
+    assert_eq!(p["frame"], "curved", "{p}");
+    // A planar frame would draw the corners hundreds of kilometres off.
+    assert!(p["flat_frame_error"]["vertical_m"].as_f64().unwrap().abs() > 1e5, "{p}");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("on the globe: curved"));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("warning"), "{}", String::from_utf8_lossy(&o.stderr));
+    // Leaf vertices are samples: where a client draws them is where they
+    // are, up to the f32 rounding of chunk-local positions in leaves
+    // hundreds of kilometres wide (an ulp of 2^20 m is 6 cm).
+    let (along, across, n) = curved_leaf_vertices_against_their_samples(&out, &dem, (-20.0, 50.0, cell));
+    assert!(n > 10_000, "{n} vertices");
+    assert!(along < 0.25 && across < 0.25, "{along} m along the normal, {across} m across");
+    // verify measures every sample's distance along the normal to the
+    // surface as drawn, and every morph target on the parent as drawn.
+    let r = crate::common::verified_against(&out, &[dem]);
+    assert!(r.curved);
+    for (level, l) in &r.levels {
+        assert!(l.max_error_m <= l.delta_m * (1.0 + 1e-6), "level {level}: {} m over δ {}", l.max_error_m, l.delta_m);
+    }
+}
+
+#[test]
+fn a_planar_tileset_claiming_the_curved_frame_fails_verify() {
+    // 4° × 4° at 45° N: the flat frame misses by kilometres, so auto curves it.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = geographic_asc(tmp.path(), "region", (129, 129), (5.0, 43.0), 4.0 / 128.0);
+    let (_t, out, _) = build_ok(&dem, 5.0);
+    assert_eq!(tileset(&out)["extras"]["terrachunk"]["placement"]["frame"], "curved");
+    crate::common::verified_against(&out, std::slice::from_ref(&dem));
+    // The planar build of the same grid has the same root transform (a
+    // geographic grid's is the ENU frame at its centre either way), so only
+    // the samples' distances in ECEF can tell that its chunks are not
+    // where the Earth is.
+    let flat = tmp.path().join("flat");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", flat.to_str().unwrap(), "--max-error", "5", "--frame", "flat"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut ts = tileset(&flat);
+    assert_eq!(ts["root"]["transform"], tileset(&out)["root"]["transform"]);
+    ts["extras"]["terrachunk"]["placement"]["frame"] = "curved".into();
+    std::fs::write(flat.join("tileset.json"), serde_json::to_vec(&ts).unwrap()).unwrap();
+    let r = terrachunk::verify::verify(&flat, Some(&[dem])).unwrap();
+    assert!(
+        r.failures.iter().any(|f| f.contains("along the ellipsoid normal")),
+        "a planar tileset passed as curved: {:?}",
+        r.failures
+    );
+}
+
+#[test]
+fn a_small_grid_keeps_the_flat_frame_byte_for_byte() {
+    // 1 × 1 km at 46° N: the tangent plane is within a few centimetres.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = geographic_asc(tmp.path(), "small", (101, 101), (7.0, 46.0), 1e-4);
+    let (_t, auto, _) = build_ok(&dem, 1.0);
+    let ts = tileset(&auto);
+    assert!(ts["extras"]["terrachunk"]["placement"].get("frame").is_none(), "{}", ts["extras"]["terrachunk"]);
+    let flat = tmp.path().join("flat");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", flat.to_str().unwrap(), "--max-error", "1", "--frame", "flat"]);
+    assert!(o.status.success());
+    for entry in walkdir(&auto) {
+        let rel = entry.strip_prefix(&auto).unwrap();
+        assert_eq!(std::fs::read(&entry).unwrap(), std::fs::read(flat.join(rel)).unwrap(), "{}", rel.display());
+    }
+}
+
+fn walkdir(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() { out.extend(walkdir(&p)) } else { out.push(p) }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn the_curved_frame_refuses_settings_it_cannot_keep() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = geographic_asc(tmp.path(), "region", (33, 33), (5.0, 43.0), 0.1);
+    for extra in [["--compress", "quantize"], ["--mesher", "tin"]] {
+        let out = tmp.path().join("out");
+        let mut args = vec!["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--frame", "curved"];
+        args.extend(extra);
+        let o = cli(&args);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("frame") && err.contains("rtin") && err.contains("none"), "{err}");
+        assert!(!out.exists());
+    }
+    // Without a CRS there is no Earth to curve onto.
+    let bare = tmp.path().join("bare.asc");
+    std::fs::copy(&dem, &bare).unwrap();
+    let out = tmp.path().join("out");
+    let o = cli(&["build", bare.to_str().unwrap(), "-o", out.to_str().unwrap(), "--frame", "curved"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("cannot be placed on the Earth"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!out.exists());
+}
+
+/// A projected GeoTIFF (PixelIsPoint) of `n` × `n` samples `step` apart
+/// with sample (0, 0) on `xy`: hills 1–3 km high.
+fn projected_hills_tif(path: &Path, epsg: u16, n: u32, step: f64, xy: [f64; 2]) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(n, n).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
+    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, xy[0], xy[1], 0.0][..]).unwrap();
+    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, epsg];
+    e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
+    let data: Vec<f32> = (0..n * n)
+        .map(|k| {
+            let (i, j) = (f64::from(k / n), f64::from(k % n));
+            (2000.0 + 800.0 * (i * 0.09).sin() * (j * 0.05).cos() + 200.0 * ((i + 2.0 * j) * 0.4).sin()) as f32
+        })
+        .collect();
+    img.write_data(&data).unwrap();
+}
+
+#[test]
+fn an_antarctic_polar_stereographic_grid_is_curved_and_verified() {
+    // EPSG:3031, 256 × 256 km around 81° S (1 000 km from the pole).
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("antarctic.tif");
+    projected_hills_tif(&dem, 3031, 129, 2000.0, [-128_000.0, -872_000.0]);
+    let (_t, out, report) = build_ok(&dem, 10.0);
+    assert_eq!(report.frame, terrachunk::geodesy::FrameKind::Curved);
+    let ts = tileset(&out);
+    assert_eq!(ts["extras"]["terrachunk"]["placement"]["frame"], "curved");
+    let r = crate::common::verified_against(&out, &[dem]);
+    assert!(r.curved && r.levels.len() >= 2, "{:?}", r.levels.keys());
+}
+
+#[test]
+fn a_one_kilometre_grid_at_89_9_degrees_north_keeps_the_flat_frame_within_its_error() {
+    // EPSG:3413 (NSIDC polar stereographic north), 1 × 1 km, 11 km from the
+    // pole: the tangent plane is within centimetres, so it stays flat.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("arctic.tif");
+    projected_hills_tif(&dem, 3413, 101, 10.0, [-500.0, -10_600.0]);
+    let (_t, out, report) = build_ok(&dem, 1.0);
+    assert_eq!(report.frame, terrachunk::geodesy::FrameKind::Flat);
+    let p = &tileset(&out)["extras"]["terrachunk"]["placement"];
+    let lat = p["lat_deg"].as_f64().unwrap();
+    assert!((89.89..89.91).contains(&lat), "{p}");
+    let e = &p["flat_frame_error"];
+    assert!(e["vertical_m"].as_f64().unwrap().abs() < 0.05 && e["horizontal_m"].as_f64().unwrap() < 0.01, "{e}");
     crate::common::verified_against(&out, &[dem]);
 }

@@ -221,6 +221,14 @@ pub enum NotPlaced {
         /// What the library said.
         why: String,
     },
+    /// A grid of degrees that reaches a pole, whose columns meet there in
+    /// one point: written curved, its pole row's vertices could not be
+    /// told apart again.
+    #[error("{name}: the grid reaches a pole, where its columns meet in one point")]
+    AtPole {
+        /// `EPSG:code`, or where the definition came from.
+        name: String,
+    },
     /// The grid centre does not come back as a point on the Earth.
     #[error("{name} puts the grid centre ({x}, {y}) nowhere on the Earth")]
     OffTheEarth {

@@ -459,7 +459,6 @@ impl Rtin {
         })
     }
 
-
     /// Whether the mesh at `delta` splits triangle `t` (whose box lies
     /// inside or straddles the grid).
     #[inline]
@@ -853,7 +852,11 @@ impl Mesher<'_> {
         // The apex across the hypotenuse: r reflected through m.
         let across = (i64::from(2 * m.0) - i64::from(t.r.0), i64::from(2 * m.1) - i64::from(t.r.1));
         let mut slope = self.slope([t.a, t.b, t.r], s);
-        if across.0 >= 0 && across.1 >= 0 && (across.0 as usize) < self.grid.width && (across.1 as usize) < self.grid.height {
+        if across.0 >= 0
+            && across.1 >= 0
+            && (across.0 as usize) < self.grid.width
+            && (across.1 as usize) < self.grid.height
+        {
             slope = slope.max(self.slope([t.a, t.b, (across.0 as u32, across.1 as u32)], s));
         }
         let rounding = 4.0 * f64::from(f32::EPSILON) * f64::from(side) * s[0].max(s[1]);

@@ -323,6 +323,7 @@ pub(crate) fn curved(hf: &Heightfield, cfg: &Config) -> bool {
                     .ok()
                     .and_then(|p| p.flat_frame_error)
                     .is_some_and(|e| e.worst_m() > FLAT_FRAME_SHARE * cfg.max_error_m)
+                && Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).is_ok()
         }
     }
 }
@@ -332,9 +333,9 @@ pub(crate) fn globe(hf: &Heightfield, cfg: &Config) -> Result<Option<Globe>, Bui
     if !curved(hf, cfg) {
         return Ok(None);
     }
-    Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).map(Some).map_err(|why| {
-        BuildError::Frame(format!("{}: the grid cannot be placed on the Earth: {why}", hf.source))
-    })
+    Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m)
+        .map(Some)
+        .map_err(|why| BuildError::Frame(format!("{}: the grid cannot be placed on the Earth: {why}", hf.source)))
 }
 
 /// Each worker's stack as std gives it (2 MiB) and the signal stack std

@@ -30,6 +30,8 @@ pub(super) struct Curved {
     origin: [f64; 2],
     step: [f64; 2],
     spacing: [f64; 2],
+    /// The DEM's degrees are WGS 84's (no datum shift at its centre).
+    degrees: bool,
 }
 
 /// A chunk's written surface in ECEF: its vertices, their morph targets,
@@ -47,14 +49,20 @@ impl Curved {
         if ts["extras"]["terrachunk"]["placement"]["frame"] != "curved" {
             return Ok(None);
         }
-        let t: Vec<f64> = ts["root"]["transform"].as_array().map_or(Vec::new(), |a| {
-            a.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect()
-        });
+        let t: Vec<f64> = ts["root"]["transform"]
+            .as_array()
+            .map_or(Vec::new(), |a| a.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect());
         let transform: [f64; 16] =
             t.try_into().map_err(|_| "a curved tileset's root tile has no transform of 16 numbers".to_string())?;
         let source = SourceCrs::of(&hf.georef.crs, hf.georef.definition.as_deref())
             .map_err(|e| format!("a curved tileset, but the DEM cannot be placed: {e}"))?;
-        Ok(Some(Curved { transform, source, origin: hf.georef.origin, step: hf.georef.step, spacing: hf.spacing_m }))
+        let (origin, step) = (hf.georef.origin, hf.georef.step);
+        let centre = [0, 1].map(|a| origin[a] + step[a] * ([hf.width, hf.height][a] - 1) as f64 / 2.0);
+        let degrees = source.geographic
+            && source
+                .to_wgs84(centre)
+                .is_some_and(|(lat, lon)| (lat - centre[1]).abs() < 1e-9 && (lon - centre[0]).abs() < 1e-9);
+        Ok(Some(Curved { transform, source, origin, step, spacing: hf.spacing_m, degrees }))
     }
 
     /// ECEF of a world (glTF y-up) position, through the root transform.
@@ -79,7 +87,7 @@ impl Curved {
     /// height `h`.
     fn sample(&self, i: usize, j: usize, h: f64) -> Option<([f64; 3], [f64; 3])> {
         let src = [self.origin[0] + self.step[0] * j as f64, self.origin[1] + self.step[1] * i as f64];
-        let (lat, lon) = self.source.to_wgs84(src)?;
+        let (lat, lon) = if self.degrees { (src[1], src[0]) } else { self.source.to_wgs84(src)? };
         Some((ecef(lat, lon, h), up(lat, lon)))
     }
 
@@ -93,8 +101,8 @@ impl Curved {
         let mut targets = Vec::new();
         let rounding_m = std::iter::once(&c.surface).chain(&c.skirt).map(rounding).fold(0.0, f64::max);
         let snap = 1e-6 + 4.0 * rounding_m / self.spacing[0].min(self.spacing[1]);
-        for (written, prim, is_surface) in
-            std::iter::once((&c.surface, &mut flat.surface, true)).chain(c.skirt.iter().zip(flat.skirt.as_mut()).map(|(w, f)| (w, f, false)))
+        for (written, prim, is_surface) in std::iter::once((&c.surface, &mut flat.surface, true))
+            .chain(c.skirt.iter().zip(flat.skirt.as_mut()).map(|(w, f)| (w, f, false)))
         {
             for (k, p) in written.positions.iter().enumerate() {
                 let e = self.ecef(*p);
@@ -199,7 +207,10 @@ impl Curved {
             };
             let corners = parent.triangle(t);
             let on = [0, 1, 2].map(|axis| {
-                let with = |c: usize| MeshVertex { h: parent_bent.surface[corners[c] as usize][axis], ..parent.vertex(corners[c]) };
+                let with = |c: usize| MeshVertex {
+                    h: parent_bent.surface[corners[c] as usize][axis],
+                    ..parent.vertex(corners[c])
+                };
                 barycentric(&with(0), &with(1), &with(2), v.x, v.z).1
             });
             let g = dot(sub(bent.targets[k], on), sub(bent.targets[k], on)).sqrt();

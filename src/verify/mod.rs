@@ -328,8 +328,10 @@ impl Walk<'_> {
         let mut out: Vec<Visited> = kids.par_iter().flat_map_iter(|&kid| self.visit(kid, kids_parent)).collect();
         out.push(match (&file, flat) {
             (Ok(c), Some(f)) => {
-                let mut read: Vec<String> =
-                    (c.key != k).then(|| format!("chunk {}: node extras say {:?}", name(k), c.key)).into_iter().collect();
+                let mut read: Vec<String> = (c.key != k)
+                    .then(|| format!("chunk {}: node extras say {:?}", name(k), c.key))
+                    .into_iter()
+                    .collect();
                 if let Some(Err(why)) = &bent {
                     read.push(format!("chunk {}: {why}", name(k)));
                 }
@@ -350,7 +352,14 @@ impl Walk<'_> {
     }
 
     /// Error, coverage and morph of one chunk (against its parent), and its texture.
-    fn check(&self, k: ChunkKey, c: &ChunkFile, flat: &ChunkFile, ecef: Option<&CurvedChunk>, parent: Parent) -> Findings {
+    fn check(
+        &self,
+        k: ChunkKey,
+        c: &ChunkFile,
+        flat: &ChunkFile,
+        ecef: Option<&CurvedChunk>,
+        parent: Parent,
+    ) -> Findings {
         let extras = self.extras;
         let mut problems = Vec::new();
         let tile = &self.index.tiles[&k];
@@ -376,7 +385,9 @@ impl Walk<'_> {
             (Some(cv), Some(e)) => cv.check_error(self.hf, flat, e, c.delta_m, &mut problems),
             _ => planar,
         };
-        if !has_children && snap_error(c, err, extras.max_error_m) > extras.max_error_m + ecef.map_or(0.0, |e| e.rounding_m) {
+        if !has_children
+            && snap_error(c, err, extras.max_error_m) > extras.max_error_m + ecef.map_or(0.0, |e| e.rounding_m)
+        {
             problems.push(format!("leaf error {err:.4} m exceeds max_error_m {}", extras.max_error_m));
         }
         let gap = match parent {

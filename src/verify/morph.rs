@@ -3,8 +3,8 @@
 //! the morphed chunk coincides with its parent everywhere (DESIGN.md,
 //! promise 3).
 
-use super::name;
 use super::curved::CurvedChunk;
+use super::name;
 use super::read::ChunkFile;
 use crate::mesh::MeshVertex;
 use crate::mesh::locate::{LocatorIndex, SurfaceLocator, barycentric};

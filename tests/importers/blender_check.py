@@ -119,7 +119,19 @@ def check_chunk(tileset, ts, label, key, parent_key, failures):
     want_x, (z0, z1) = glbref.footprint_xz(ref)
     want_y = (-z1, -z0)  # rows run south = −y in Blender
     fp_err = max(abs(lo[0] - want_x[0]), abs(hi[0] - want_x[1]), abs(lo[1] - want_y[0]), abs(hi[1] - want_y[1]))
-    if fp_err > tol:
+    # The curved frame puts each vertex where the Earth has it: the
+    # footprint in grid metres is then where the flat frame would draw it,
+    # off by at most what the extras say the flat frame misses by, and by
+    # the normal's tilt times the heights (h·d/R at d from the centre).
+    placement = ts["extras"]["terrachunk"].get("placement") or {}
+    if placement.get("frame") == "curved":
+        flat = placement["flat_frame_error"]
+        reach = max(abs(v) for v in list(lo[:2]) + list(hi[:2]))
+        height = max(abs(lo[2]), abs(hi[2]))
+        tol_fp = tol + abs(flat["vertical_m"]) + flat["horizontal_m"] + height * reach / 6.3e6
+    else:
+        tol_fp = tol
+    if fp_err > tol_fp:
         fail(f"x/y extent {lo[:2].round(3)}..{hi[:2].round(3)} is not the footprint {want_x}, {want_y}")
 
     # Inside the tile's box in tileset.json (also z-up).

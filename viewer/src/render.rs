@@ -615,7 +615,7 @@ fn pipelines(
     capture: bool,
 ) -> Pipelines {
     let attrs = wgpu::vertex_attr_array![
-        0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32, 4 => Float32, 5 => Float32x3, 6 => Float32x2
+        0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x3, 4 => Float32, 5 => Float32x3, 6 => Float32x2
     ];
     let vbuf = [Some(wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<Vertex>() as u64,

@@ -105,7 +105,7 @@ fn read_chunk_file(path: &Path) -> Result<Vec<u8>> {
     Ok(terrachunk::verify::read_tile(dir, name)?)
 }
 
-/// One vertex as the GPU sees it (60 bytes).
+/// One vertex as the GPU sees it (68 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Vertex {
@@ -115,8 +115,9 @@ pub struct Vertex {
     pub normal: [f32; 3],
     /// TEXCOORD_0 (0 without a texture).
     pub uv: [f32; 2],
-    /// Morph delta in y toward the parent surface, metres.
-    pub morph_dy: f32,
+    /// Morph delta toward the parent surface, metres (y only in the flat
+    /// frame; a 3-vector in the curved one).
+    pub morph: [f32; 3],
     /// 0 on the surface, 1 on a skirt.
     pub role: f32,
     /// The parent surface's normal at this vertex's (x, z), not normalised
@@ -235,7 +236,9 @@ pub fn set_parent_normals(child: &mut ChunkMesh, parent: &ChunkMesh) {
         }
     }
     for v in child.vertices.iter_mut().filter(|v| v.role == 0.0) {
-        let p = [f64::from(v.pos[0]), f64::from(v.pos[2])];
+        // Where its target lies on the parent (the curved frame's deltas
+        // move it sideways too).
+        let p = [f64::from(v.pos[0] + v.morph[0]), f64::from(v.pos[2] + v.morph[2])];
         let mut best: Option<(f64, [f64; 3], [usize; 3])> = None;
         for &k in &buckets[at(p, 1) * side + at(p, 0)] {
             let t = tris[k as usize];
@@ -304,9 +307,9 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
             reader.read_tex_coords(0).map(|t| t.into_f32().collect()).unwrap_or_else(|| vec![[0.0; 2]; pos.len()]);
         let uv1: Vec<[f32; 2]> =
             reader.read_tex_coords(1).map(|t| t.into_f32().collect()).unwrap_or_else(|| uv.clone());
-        let dy: Vec<f32> = match reader.read_morph_targets().next() {
-            Some((Some(d), _, _)) => d.map(|v| v[1]).collect(),
-            _ => vec![0.0; pos.len()],
+        let dy: Vec<[f32; 3]> = match reader.read_morph_targets().next() {
+            Some((Some(d), _, _)) => d.collect(),
+            _ => vec![[0.0; 3]; pos.len()],
         };
         let base = out.vertices.len() as u32;
         let role = if skirt { 1.0 } else { 0.0 };
@@ -319,7 +322,7 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<ChunkMesh> {
                 pos: p,
                 normal,
                 uv: uv[i],
-                morph_dy: dy[i],
+                morph: dy[i],
                 role,
                 parent_normal: normal,
                 uv1: uv1[i],
@@ -407,7 +410,7 @@ fn unique_edges(indices: &[u32]) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terrachunk::config::{Compress, Config};
+    use terrachunk::config::{Compress, Config, Frame};
     use terrachunk::pipeline::{BuildOptions, build};
     use terrachunk::texture::TextureSource;
 
@@ -442,7 +445,7 @@ mod tests {
                 inputs: vec![dem.clone()],
                 out: dir.clone(),
                 force: false,
-                config: Config { max_error_m: 2.0, compress, ..Config::default() },
+                config: Config { max_error_m: 2.0, compress, frame: Frame::Flat, ..Config::default() },
                 texture: TextureSource::Generated,
                 progress: false,
                 geoid: None,
@@ -488,7 +491,7 @@ mod tests {
             inputs: vec![dem],
             out: dir.clone(),
             force: false,
-            config: Config { max_error_m: 0.5, ..Config::default() },
+            config: Config { max_error_m: 0.5, frame: Frame::Flat, ..Config::default() },
             texture: TextureSource::None,
             progress: false,
             geoid: None,

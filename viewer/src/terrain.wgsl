@@ -38,9 +38,9 @@ struct VOut {
     @location(4) uv1: vec2<f32>,
 };
 
-fn place(pos: vec3<f32>, morph_dy: f32) -> vec3<f32> {
-    // The morph target is the parent surface: base + w·delta (y only).
-    return pos + vec3<f32>(0.0, chunk.origin.w * morph_dy, 0.0) + chunk.origin.xyz;
+fn place(pos: vec3<f32>, morph: vec3<f32>) -> vec3<f32> {
+    // The morph target is the parent surface: base + w·delta.
+    return pos + chunk.origin.w * morph + chunk.origin.xyz;
 }
 
 // One vertex as both pipelines read it.
@@ -48,7 +48,7 @@ struct VIn {
     @location(0) pos: vec3<f32>,
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
-    @location(3) morph_dy: f32,
+    @location(3) morph: vec3<f32>,
     @location(4) role: f32,
     @location(5) parent_normal: vec3<f32>,
     @location(6) uv1: vec2<f32>,
@@ -56,7 +56,7 @@ struct VIn {
 
 fn vertex(v: VIn) -> VOut {
     var out: VOut;
-    let p = place(v.pos, v.morph_dy);
+    let p = place(v.pos, v.morph);
     out.clip = frame.view_proj * vec4<f32>(p, 1.0);
     out.rel = p;
     // The parent's normal is linear inside each parent triangle, so at w = 1

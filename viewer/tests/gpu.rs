@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
-use terrachunk::config::Config;
+use terrachunk::config::{Config, Frame};
 use terrachunk::lod::MorphSchedule;
 use terrachunk::pipeline::{BuildOptions, build};
 use terrachunk::texture::TextureSource;
@@ -51,7 +51,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
             inputs: vec![dem],
             out: dir.clone(),
             force: false,
-            config: Config { max_error_m: 2.0, threads: 0, ..Config::default() },
+            config: Config { max_error_m: 2.0, threads: 0, frame: Frame::Flat, ..Config::default() },
             texture: TextureSource::Generated,
             progress: false,
             geoid: None,
@@ -104,7 +104,7 @@ impl Heights {
             let m = load_chunk(&ts.chunk_path(node)).unwrap();
             let world = |i: u32| {
                 let v = &m.vertices[i as usize];
-                let y = f64::from(v.pos[1]) + weight * f64::from(v.morph_dy);
+                let y = f64::from(v.pos[1]) + weight * f64::from(v.morph[1]);
                 [m.translation[0] + f64::from(v.pos[0]), m.translation[1] + y, m.translation[2] + f64::from(v.pos[2])]
             };
             for t in m.indices[..m.surface_indices as usize].chunks_exact(3) {
@@ -593,7 +593,12 @@ fn a_split_at_full_morph_changes_no_pixel_with_lighting_on() {
     let _gpu = fixture();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("plain");
-    build_into(&dir, &helens_dem(), Config { max_error_m: 2.0, ..Config::default() }, TextureSource::None);
+    build_into(
+        &dir,
+        &helens_dem(),
+        Config { max_error_m: 2.0, frame: Frame::Flat, ..Config::default() },
+        TextureSource::None,
+    );
     let mut v = viewer(&dir, 2.0);
     v.opts.look.lighting = true;
     let t = v.renderer.targets(SIZE);
@@ -648,7 +653,7 @@ fn the_normal_map_shades_by_the_dem_normals() {
     let f = fixture();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("normals");
-    let config = Config { max_error_m: 4.0, normal_map: true, ..Config::default() };
+    let config = Config { max_error_m: 4.0, normal_map: true, frame: Frame::Flat, ..Config::default() };
     build_into(&dir, &helens_dem(), config, TextureSource::Generated);
     let mut v = viewer(&dir, 2.0);
     assert!(load_chunk(&v.tileset.chunk_path(0)).unwrap().normal_map.is_some(), "normalTexture not read");
@@ -780,7 +785,13 @@ fn continent() -> &'static (tempfile::TempDir, PathBuf) {
         std::fs::write(&dem, text).unwrap();
         let dir = tmp.path().join("continent");
         // 8-cell leaves: four levels under each root.
-        let config = Config { max_error_m: 8.0, root_cells: Some(64), leaf_cells: Some(8), ..Config::default() };
+        let config = Config {
+            max_error_m: 8.0,
+            root_cells: Some(64),
+            leaf_cells: Some(8),
+            frame: Frame::Flat,
+            ..Config::default()
+        };
         build_into(&dir, &dem, config, TextureSource::Generated);
         (tmp, dir)
     })
