@@ -28,10 +28,17 @@ pub struct Globe {
     centre: [f64; 2],
     /// Longitude and latitude of the grid centre, degrees.
     pub lon_lat: [f64; 2],
-    /// A bound on the second derivative of [`Globe::world`] with respect to
-    /// grid metres (x = column · s_x, z = row · s_z), 1/m: the Earth's
-    /// curvature and the projection's own bending together.
-    pub curvature: f64,
+    /// For a grid of degrees, per row (sin φ, cos φ, N, the prime vertical
+    /// radius) and per column (sin λ, cos λ): a vertex at a sample then
+    /// costs no trigonometry.
+    rows: Vec<[f64; 3]>,
+    cols: Vec<[f64; 2]>,
+    /// Bounds on the second derivative of [`Globe::world`] with respect to
+    /// grid metres (x = column · s_x, z = row · s_z), 1/m: its part along
+    /// the ellipsoid normal (the Earth's curvature, which makes a chord
+    /// sag) and across it (the projection's own bending, which moves a
+    /// chord sideways).
+    pub curvature: [f64; 2],
 }
 
 impl Globe {
@@ -58,7 +65,9 @@ impl Globe {
             frame: EnuFrame::new(lat, lon),
             centre: [cj * spacing_m[0], ci * spacing_m[1]],
             lon_lat: [lon, lat],
-            curvature: 0.0,
+            curvature: [0.0; 2],
+            rows: Vec::new(),
+            cols: Vec::new(),
         };
         let lat_edges = [0.0, (height - 1) as f64].map(|i| globe.origin[1] + globe.step[1] * i);
         if globe.source.geographic && lat_edges.iter().any(|l| l.abs() >= 90.0 - 1e-9) {
@@ -70,6 +79,21 @@ impl Globe {
             }
         }
         globe.curvature = globe.measure_curvature(width, height, spacing_m);
+        if degrees {
+            let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+            globe.rows = (0..height)
+                .map(|i| {
+                    let (s, c) = (georef.origin[1] + georef.step[1] * i as f64).to_radians().sin_cos();
+                    [s, c, super::WGS84_A / (1.0 - e2 * s * s).sqrt()]
+                })
+                .collect();
+            globe.cols = (0..width)
+                .map(|j| {
+                    let (s, c) = (georef.origin[0] + georef.step[0] * j as f64).to_radians().sin_cos();
+                    [s, c]
+                })
+                .collect();
+        }
         Ok(globe)
     }
 
@@ -87,16 +111,40 @@ impl Globe {
     /// of grid point (`j`, `i`) at ellipsoidal height `h`; NaN where the
     /// projection has no inverse there.
     pub fn world(&self, j: f64, i: f64, h: f64) -> [f64; 3] {
-        let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
-        let enu = self.frame.enu(ecef(lat, lon, h));
+        let p = match self.at_sample(j, i) {
+            Some(([sp, cp, n], [sl, cl])) => {
+                let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+                [(n + h) * cp * cl, (n + h) * cp * sl, (n * (1.0 - e2) + h) * sp]
+            }
+            None => {
+                let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
+                ecef(lat, lon, h)
+            }
+        };
+        let enu = self.frame.enu(p);
         [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
+    }
+
+    /// The row's and column's tables where (`j`, `i`) is a sample of a grid
+    /// of degrees.
+    #[inline]
+    fn at_sample(&self, j: f64, i: f64) -> Option<([f64; 3], [f64; 2])> {
+        if j.fract() != 0.0 || i.fract() != 0.0 || j < 0.0 || i < 0.0 {
+            return None;
+        }
+        Some((*self.rows.get(i as usize)?, *self.cols.get(j as usize)?))
     }
 
     /// The east, up and south unit vectors at grid point (`j`, `i`), in
     /// world coordinates: what a flat-frame normal is expressed in there.
     pub fn axes(&self, j: f64, i: f64) -> [[f64; 3]; 3] {
-        let Some((lat, lon)) = self.lat_lon(j, i) else { return [[f64::NAN; 3]; 3] };
-        let local = EnuFrame::new(lat, lon).axes;
+        let local = match self.at_sample(j, i) {
+            Some(([sp, cp, _], [sl, cl])) => [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]],
+            None => {
+                let Some((lat, lon)) = self.lat_lon(j, i) else { return [[f64::NAN; 3]; 3] };
+                EnuFrame::new(lat, lon).axes
+            }
+        };
         let world = |v: [f64; 3]| {
             let [e, n, u] = self.frame.axes.map(|a| a[0] * v[0] + a[1] * v[1] + a[2] * v[2]);
             [e, u, -n]
@@ -107,49 +155,61 @@ impl Globe {
 
     /// How far, at most, a chunk triangle written between the world
     /// positions of its corners strays from the surface its grid heights
-    /// describe, along the normal, for a triangle whose longest side is
-    /// `longest_m` grid metres and whose planar slope is `slope`: linear
-    /// interpolation of a map with second derivative κ misses it by
-    /// κ·r²/2 (r the radius of the smallest circle holding the triangle,
-    /// at most longest/√3); heights add 2·slope/R to κ (the normal turns
-    /// by 1/R per metre), and the miss's sideways part moves a sloping
-    /// surface by slope times it.
-    pub fn margin_m(&self, longest_m: f64, slope: f64) -> f64 {
-        longest_m * longest_m / 6.0 * (self.curvature + 2.0 * slope / MIN_RADIUS_M) * (1.0 + slope)
+    /// describe, along the normal, for a triangle held by a circle of
+    /// squared radius `r2` (grid metres²) and of planar slope `slope`:
+    /// linear interpolation of a map with second derivative κ misses it by
+    /// κ·r²/2. Along the normal that is the sag (the normal part of κ);
+    /// across it, the projection's bending and, with heights, 2·slope/R
+    /// (the normal turns by 1/R per metre), which moves a surface of that
+    /// slope by slope times it.
+    pub fn margin_m(curvature: [f64; 2], r2: f64, slope: f64) -> f64 {
+        let [normal, across] = curvature;
+        r2 / 2.0 * (normal + slope * (across + 2.0 * slope / MIN_RADIUS_M))
     }
 
     /// The largest second derivative of `world` (at height 0) over a 9 × 9
-    /// lattice of the grid, by second differences a sixteenth of the
-    /// grid's narrower side apart, with a quarter more for what lies
-    /// between lattice points and heights up to 10 km.
-    fn measure_curvature(&self, width: usize, height: usize, spacing_m: [f64; 2]) -> f64 {
+    /// lattice of the grid, along the normal and across it, by second
+    /// differences a sixteenth of the grid's narrower side apart, with a
+    /// quarter more for what lies between lattice points and heights up to
+    /// 10 km.
+    fn measure_curvature(&self, width: usize, height: usize, spacing_m: [f64; 2]) -> [f64; 2] {
         let extent = [(width - 1) as f64 * spacing_m[0], (height - 1) as f64 * spacing_m[1]];
         let d = (extent[0].min(extent[1]) / 16.0).max(1e-3);
         let f = |x: f64, z: f64| self.world(x / spacing_m[0], z / spacing_m[1], 0.0);
         let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        let mut worst: f64 = 0.0;
+        // The largest |Q(u)| over unit u of a quadratic form whose
+        // coefficients are bounded by xx, zz and xz.
+        let largest = |xx: f64, zz: f64, xz: f64| {
+            (xx.abs() + zz.abs()) / 2.0 + (((xx.abs() - zz.abs()) / 2.0).powi(2) + xz * xz).sqrt()
+        };
+        let mut worst = [0.0f64; 2];
         for a in 0..9 {
             for b in 0..9 {
                 let at = |t: f64, e: f64| if e > 2.0 * d { d + t * (e - 2.0 * d) } else { e / 2.0 };
                 let (x, z) = (at(a as f64 / 8.0, extent[0]), at(b as f64 / 8.0, extent[1]));
-                let (dx, dz) = (d.min(x.max(extent[0] - x)), d.min(z.max(extent[1] - z)));
-                let (dx, dz) = (dx.max(1e-3), dz.max(1e-3));
+                let (dx, dz) = (d.min(x.max(extent[0] - x)).max(1e-3), d.min(z.max(extent[1] - z)).max(1e-3));
                 let c = f(x, z);
-                let second =
-                    |p: [f64; 3], q: [f64; 3], s: f64| norm([0, 1, 2].map(|k| (p[k] + q[k] - 2.0 * c[k]) / (s * s)));
+                let up = self.axes(x / spacing_m[0], z / spacing_m[1])[1];
+                let second = |p: [f64; 3], q: [f64; 3], s: f64| [0, 1, 2].map(|k| (p[k] + q[k] - 2.0 * c[k]) / (s * s));
                 let xx = second(f(x + dx, z), f(x - dx, z), dx);
                 let zz = second(f(x, z + dz), f(x, z - dz), dz);
                 let (pp, pm, mp, mm) = (f(x + dx, z + dz), f(x + dx, z - dz), f(x - dx, z + dz), f(x - dx, z - dz));
-                let xz = norm([0, 1, 2].map(|k| (pp[k] - pm[k] - mp[k] + mm[k]) / (4.0 * dx * dz)));
-                // The largest |Q(u)| over unit u of a quadratic form whose
-                // coefficients are bounded by xx, zz and xz.
-                let lambda = (xx + zz) / 2.0 + (((xx - zz) / 2.0).powi(2) + xz * xz).sqrt();
-                if lambda.is_finite() {
-                    worst = worst.max(lambda);
+                let xz = [0, 1, 2].map(|k| (pp[k] - pm[k] - mp[k] + mm[k]) / (4.0 * dx * dz));
+                let along = |v: [f64; 3]| v[0] * up[0] + v[1] * up[1] + v[2] * up[2];
+                let across = |v: [f64; 3]| {
+                    let a = along(v);
+                    norm([v[0] - a * up[0], v[1] - a * up[1], v[2] - a * up[2]])
+                };
+                let parts = [largest(along(xx), along(zz), along(xz)), largest(across(xx), across(zz), across(xz))];
+                for k in 0..2 {
+                    if parts[k].is_finite() {
+                        worst[k] = worst[k].max(parts[k]);
+                    }
                 }
             }
         }
-        worst.max(1.0 / MIN_RADIUS_M) * 1.25 * (1.0 + 1e4 / MIN_RADIUS_M)
+        let grow = 1.25 * (1.0 + 1e4 / MIN_RADIUS_M);
+        [worst[0].max(1.0 / MIN_RADIUS_M) * grow, worst[1] * grow + 1e-3 / MIN_RADIUS_M]
     }
 }
 
@@ -223,12 +283,14 @@ mod tests {
     #[test]
     fn curvature_is_the_earth_s_on_a_small_grid_and_more_where_degrees_shear() {
         let (g, s) = geographic([7.0, 46.01], 1e-4, 101);
-        let small = Globe::of_grid(&g, 101, 101, s).unwrap().curvature;
-        // The sphere's 1/R, and the tan φ/R by which east metres shrink
-        // northwards on a grid of degrees (1.04/R at 46°).
-        assert!(small > 1.0 / 6.4e6 && small < 3.0 / 6.3e6, "{small}");
+        let [normal, across] = Globe::of_grid(&g, 101, 101, s).unwrap().curvature;
+        // Along the normal, the Earth's 1/R; across it, the tan φ/R by
+        // which east metres shrink northwards on a grid of degrees (1.04/R
+        // at 46°).
+        assert!(normal > 1.0 / 6.4e6 && normal < 1.5 / 6.3e6, "{normal}");
+        assert!(across > 0.9 / 6.4e6 && across < 1.5 / 6.3e6, "{across}");
         let (g, s) = geographic([0.0, 80.0], 0.1, 201);
         let north = Globe::of_grid(&g, 201, 201, s).unwrap().curvature;
-        assert!(north > 2.0 * small, "{north} against {small}");
+        assert!(north[1] > 4.0 * across, "{north:?} against {across}");
     }
 }

@@ -185,6 +185,47 @@ enum Place {
     Outside,
 }
 
+/// What the curved frame adds to a triangle's error: how far its chord,
+/// written between the world positions of its corners, may stray from the
+/// surface its heights describe ([`Globe::margin_m`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sag {
+    /// The globe's curvature bounds, along the normal and across it.
+    pub curvature: [f64; 2],
+    /// The grid spacing, metres.
+    pub spacing: [f64; 2],
+}
+
+impl Sag {
+    /// The sag of the frame of `globe` on a grid `spacing` apart.
+    pub fn of(globe: &Globe, spacing: [f64; 2]) -> Sag {
+        Sag { curvature: globe.curvature, spacing }
+    }
+
+    /// The sag bound of the triangle with these corners (grid units, with
+    /// their heights): [`Globe::margin_m`] for the smallest circle holding
+    /// it and its planar slope.
+    fn of_triangle(&self, c: &[MeshVertex; 3]) -> f64 {
+        let s = self.spacing;
+        let p = c.map(|v| [v.x * s[0], v.z * s[1], v.h]);
+        let d = |a: usize, b: usize| [p[b][0] - p[a][0], p[b][1] - p[a][1], p[b][2] - p[a][2]];
+        let (u, v, w) = (d(0, 1), d(0, 2), d(1, 2));
+        let (a2, b2, c2) = (u[0] * u[0] + u[1] * u[1], v[0] * v[0] + v[1] * v[1], w[0] * w[0] + w[1] * w[1]);
+        // On its longest side where the angle there is right or obtuse,
+        // else its circumcircle (R² = a²b²c² / 16 area²).
+        let longest = a2.max(b2).max(c2);
+        let r2 = if 2.0 * longest >= a2 + b2 + c2 {
+            longest / 4.0
+        } else {
+            a2 * b2 * c2 / (2.0 * (a2 * b2 + b2 * c2 + c2 * a2) - (a2 * a2 + b2 * b2 + c2 * c2))
+        };
+        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let slope = ((n[0] * n[0] + n[1] * n[1]) / (n[2] * n[2])).sqrt();
+        let slope = if slope.is_finite() { slope } else { 0.0 };
+        Globe::margin_m(self.curvature, r2, slope)
+    }
+}
+
 /// The error field: what every chunk of one build is cut from, for any
 /// tree it [`serves`](Rtin::serves).
 pub struct Rtin {
@@ -200,6 +241,8 @@ pub struct Rtin {
     ladder: f64,
     /// The height step the errors include.
     step: Option<f64>,
+    /// The curved frame's chord sag the errors include.
+    sag: Option<Sag>,
     /// [`Rtin::densest_squares`] per square side, kept: the refine count
     /// asks again for the same sides with one more level each time.
     densest: Mutex<HashMap<u32, Vec<usize>>>,
@@ -209,13 +252,16 @@ impl Rtin {
     /// The bottom-up pass over the whole grid, for the levels of `tree`
     /// (planned by [`plan`]). `height_step`: quantized output rounds every
     /// height to multiples of it, which each triangle's error then includes.
-    pub fn new(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>) -> Self {
-        Self::with_scans(grid, tree, height_step, false)
+    /// `sag`: in the curved frame each triangle's error also holds how far
+    /// its chord may sag ([`Sag`]); held in the field, it grows with the
+    /// triangles as the errors do, so the meshes still conform and nest.
+    pub fn new(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, sag: Option<Sag>) -> Self {
+        Self::with_scans(grid, tree, height_step, sag, false)
     }
 
     /// [`Rtin::new`], scanning every triangle when `exact` (else only those
     /// whose bounds straddle a δ).
-    fn with_scans(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, exact: bool) -> Self {
+    fn with_scans(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, sag: Option<Sag>, exact: bool) -> Self {
         let top = square_side(tree, 0);
         let ladder = *tree.delta_m.last().expect("a tree has a level");
         let field = Field {
@@ -225,6 +271,7 @@ impl Rtin {
             step: height_step.unwrap_or(0.0),
             ladder,
             exact,
+            sag,
             errors: (0..grid.width * grid.height).map(|_| AtomicU32::new(0)).collect(),
         };
         let mut c = 2;
@@ -241,6 +288,7 @@ impl Rtin {
             top,
             ladder,
             step: height_step,
+            sag,
             densest: Mutex::default(),
         }
     }
@@ -248,10 +296,11 @@ impl Rtin {
     /// Whether this field meshes `tree`'s chunks with heights rounded to
     /// `height_step`: the same top squares, smallest δ and step (refine
     /// levels change neither).
-    pub fn serves(&self, tree: &ChunkTree, height_step: Option<f64>) -> bool {
+    pub fn serves(&self, tree: &ChunkTree, height_step: Option<f64>, sag: Option<Sag>) -> bool {
         square_side(tree, 0) == self.top
             && tree.delta_m.last() == Some(&self.ladder)
             && height_step.map(f64::to_bits) == self.step.map(f64::to_bits)
+            && sag == self.sag
     }
 
     /// The deepest level of `tree` (one this field serves) with a chunk that
@@ -575,6 +624,7 @@ struct Field<'g> {
     ladder: f64,
     /// Scan every triangle (to test the bounds against).
     exact: bool,
+    sag: Option<Sag>,
     /// f32 bits; each level writes only its own vertices and reads those of
     /// the level below, so relaxed loads and stores suffice.
     errors: Vec<AtomicU32>,
@@ -630,7 +680,8 @@ impl Field<'_> {
                         let h = vertex_height(self.grid, p);
                         MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph: h }
                     });
-                    let rounding = corners.iter().map(|v| rounds_by(v.h, self.step)).fold(0.0, f64::max);
+                    let rounding = corners.iter().map(|v| rounds_by(v.h, self.step)).fold(0.0, f64::max)
+                        + self.sag.map_or(0.0, |s| s.of_triangle(&corners));
                     // Bounds on the scan: at least the sample at m is off the
                     // plane by `off`; at most that plus the children's own
                     // errors (on a child, the two planes differ by a linear
@@ -825,59 +876,27 @@ impl Mesher<'_> {
     }
 
     /// Whether the mesh at `delta` (a level of squares of `side` cells)
-    /// splits `t`: where its error does, or, in the curved frame, where its
-    /// error and its chord's sag together do. The sag is taken over both
-    /// triangles on `t`'s hypotenuse, so the two decide alike (no crack).
+    /// splits `t`. In the curved frame the field's errors hold each
+    /// triangle's sag, and δ is lessened by what f32 rounds positions by in
+    /// a chunk of that size: one threshold per level, so the meshes conform
+    /// and nest as they do flat.
     #[inline]
     fn splits(&self, t: &Tri, place: Place, delta: f64, side: u32) -> Option<P> {
-        let m = self.rtin.splits(t, place, delta);
-        if m.is_some() {
-            return m;
-        }
-        let (globe, s) = self.globe?;
-        let m = t.midpoint()?;
-        let e = f64::from(self.rtin.error_at(m.0, m.1));
-        (e + self.sag(t, m, globe, s, side) > delta).then_some(m)
+        self.rtin.splits(t, place, delta - self.rounding(side))
     }
 
-    /// How far `t`'s chord may sag from the surface its heights describe,
-    /// over its samples ([`Globe::margin_m`]), split at `m`; with what the
-    /// f32 rounding of positions in a chunk of `side` cells may add.
-    fn sag(&self, t: &Tri, m: P, globe: &Globe, s: [f64; 2], side: u32) -> f64 {
-        let metres = |a: P, b: P| {
-            let (dx, dz) = (f64::from(a.0) - f64::from(b.0), f64::from(a.1) - f64::from(b.1));
-            (dx * s[0]).hypot(dz * s[1])
-        };
-        let longest = metres(t.a, t.b).max(metres(t.a, t.r)).max(metres(t.b, t.r));
-        // The apex across the hypotenuse: r reflected through m.
-        let across = (i64::from(2 * m.0) - i64::from(t.r.0), i64::from(2 * m.1) - i64::from(t.r.1));
-        let mut slope = self.slope([t.a, t.b, t.r], s);
-        if across.0 >= 0
-            && across.1 >= 0
-            && (across.0 as usize) < self.grid.width
-            && (across.1 as usize) < self.grid.height
-        {
-            slope = slope.max(self.slope([t.a, t.b, (across.0 as u32, across.1 as u32)], s));
-        }
-        let rounding = 4.0 * f64::from(f32::EPSILON) * f64::from(side) * s[0].max(s[1]);
-        globe.margin_m(longest, slope) + rounding
-    }
-
-    /// The steepest slope (rise over run) of the plane through three grid
-    /// points at their vertex heights.
-    fn slope(&self, c: [P; 3], s: [f64; 2]) -> f64 {
-        let [a, b, r] = c.map(|p| [f64::from(p.0) * s[0], f64::from(p.1) * s[1], vertex_height(self.grid, p)]);
-        let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [r[0] - a[0], r[1] - a[1], r[2] - a[2]]);
-        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let slope = n[0].hypot(n[1]) / n[2].abs();
-        if slope.is_finite() { slope } else { 0.0 }
+    /// How far f32 may round chunk-local positions in a chunk of `side`
+    /// cells, metres (0 in the flat frame, where samples are written exactly).
+    #[inline]
+    fn rounding(&self, side: u32) -> f64 {
+        self.globe.map_or(0.0, |(_, s)| 4.0 * f64::from(f32::EPSILON) * f64::from(side) * s[0].max(s[1]))
     }
 
     fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
         // In the curved frame a triangle's error bound holds its sag too,
         // which decides whether the chunk needs children.
-        if let (Some((globe, s)), Some(m)) = (self.globe, t.midpoint()) {
-            let bound = f64::from(self.rtin.error_at(m.0, m.1)) + self.sag(&t, m, globe, s, self.side);
+        if let (Some(_), Some(m)) = (self.globe, t.midpoint()) {
+            let bound = f64::from(self.rtin.error_at(m.0, m.1)) + self.rounding(self.side);
             self.curved_error_m = self.curved_error_m.max(bound);
         }
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
@@ -953,7 +972,7 @@ mod tests {
     fn meshes(w: usize, h: usize, heights: &[f32], max_error_m: f64, leaf: u32) -> (ChunkTree, Vec<ChunkMesh>) {
         let grid = Grid::new(w, h, heights, None);
         let tree = plan(w, h, max_error_m, None, leaf, 0);
-        let rtin = Rtin::new(&grid, &tree, None);
+        let rtin = Rtin::new(&grid, &tree, None, None);
         let mut out = Vec::new();
         for l in 0..=tree.depth() {
             for y in 0..tree.zs[l as usize].len() as u32 {
@@ -1036,13 +1055,13 @@ mod tests {
         heights[2 * 5 + 1] = 3.0;
         let grid = Grid::new(5, 5, &heights, None);
         let tree = plan(5, 5, 4.0, None, 4, 0);
-        let rtin = Rtin::new(&grid, &tree, None);
+        let rtin = Rtin::new(&grid, &tree, None, None);
         let m = rtin.build_chunk(&grid, &tree, ChunkKey { level: 0, x: 0, y: 0 }, usize::MAX, None, None).unwrap();
         assert_eq!(m.triangles.len(), 2);
         assert_eq!(m.max_error_m, 3.0);
         // The vertex it would take carries the true error (or a bound on
         // the same side of δ), not the midpoint's.
-        assert_eq!(Rtin::with_scans(&grid, &tree, None, true).error_at(2, 2), 3.0);
+        assert_eq!(Rtin::with_scans(&grid, &tree, None, None, true).error_at(2, 2), 3.0);
         assert!((3.0..=4.0).contains(&rtin.error_at(2, 2)), "{}", rtin.error_at(2, 2));
     }
 
@@ -1127,7 +1146,7 @@ mod tests {
         fn counted_vertices_bound_every_chunk((w, h, heights, err, leaf) in heights_strategy()) {
             let grid = Grid::new(w, h, &heights, None);
             let tree = plan(w, h, err, None, leaf, 0);
-            let rtin = Rtin::new(&grid, &tree, None);
+            let rtin = Rtin::new(&grid, &tree, None, None);
             for level in 0..=tree.depth() {
                 let counted = rtin.densest_squares(&[square_side(&tree, level)])[0][(tree.depth() - level) as usize];
                 let l = level as usize;
@@ -1163,7 +1182,7 @@ mod tests {
         fn bounded_errors_split_where_true_errors_do((w, h, heights, err, leaf) in heights_strategy(), step in prop_oneof![Just(None), Just(Some(0.01)), Just(Some(0.37))]) {
             let grid = Grid::new(w, h, &heights, None);
             let tree = plan(w, h, err, None, leaf, 0);
-            let (bounded, exact) = (Rtin::with_scans(&grid, &tree, step, false), Rtin::with_scans(&grid, &tree, step, true));
+            let (bounded, exact) = (Rtin::with_scans(&grid, &tree, step, None, false), Rtin::with_scans(&grid, &tree, step, None, true));
             for (k, (b, e)) in bounded.errors.iter().zip(&exact.errors).enumerate() {
                 prop_assert!(b >= e, "sample {}: bound {} below the true {}", k, b, e);
                 prop_assert_eq!(rung(*b, err), rung(*e, err), "sample {}: {} against {}", k, b, e);

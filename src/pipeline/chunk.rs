@@ -179,7 +179,14 @@ pub fn bend(chunk: &mut Chunk, mesh: &ChunkMesh, globe: &Globe, spacing: [f64; 2
     let targets: Vec<[f64; 3]> = used.iter().map(|&(_, k)| mesh.parent_points[k]).collect();
     let key = |p: &[f64; 3]| p.map(f64::to_bits);
     let surface = &mut chunk.surface;
-    let tops: HashMap<[u64; 3], usize> = surface.positions.iter().enumerate().map(|(k, p)| (key(p), k)).collect();
+    // Skirts hang from the border: only border vertices can be their tops.
+    let ((x0, x1), (z0, z1)) = chunk.footprint;
+    let on_border =
+        |(j, i): (f64, f64)| j == f64::from(x0) || j == f64::from(x1) || i == f64::from(z0) || i == f64::from(z1);
+    let tops: HashMap<[u64; 3], usize> = (0..surface.positions.len())
+        .filter(|&k| on_border(chunk.surface_grid[k]))
+        .map(|k| (key(&surface.positions[k]), k))
+        .collect();
     let turn = |n: [f32; 3], axes: [[f64; 3]; 3]| -> [f32; 3] {
         let v = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
         let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();

@@ -140,8 +140,9 @@ pub(crate) fn counted_refine(
     loop {
         let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
         let step = height_step(hf, &tree, cfg);
-        if !field.as_ref().is_some_and(|f| f.serves(&tree, step)) {
-            *field = Some(Rtin::new(grid, &tree, step));
+        let sag = sag(hf, cfg);
+        if !field.as_ref().is_some_and(|f| f.serves(&tree, step, sag)) {
+            *field = Some(Rtin::new(grid, &tree, step, sag));
         }
         let f = field.as_ref().expect("made above");
         match f.densest_over(&tree, cfg.max_chunk_vertices as usize) {
@@ -153,6 +154,12 @@ pub(crate) fn counted_refine(
             _ => return refine,
         }
     }
+}
+
+/// What the curved frame adds to the bintree's errors, where `hf`'s chunks
+/// are written in it (a grid it refuses is refused by the build itself).
+fn sag(hf: &Heightfield, cfg: &Config) -> Option<rtin::Sag> {
+    super::globe(hf, cfg).ok().flatten().map(|g| rtin::Sag::of(&g, hf.spacing_m))
 }
 
 /// The height step quantized output rounds `tree`'s heights to, if any
@@ -228,10 +235,11 @@ pub(super) fn build_levels(
     let t = Instant::now();
     let step = quantization.as_ref().map(|q| q.step_y_m);
     let own;
+    let sag = globe.as_ref().map(|g| rtin::Sag::of(g, hf.spacing_m));
     let rtin = match (cfg.mesher, field) {
-        (Mesher::Rtin, Some(f)) if f.serves(tree, step) => Some(f),
+        (Mesher::Rtin, Some(f)) if f.serves(tree, step, sag) => Some(f),
         (Mesher::Rtin, _) => {
-            own = Rtin::new(grid, tree, step);
+            own = Rtin::new(grid, tree, step, sag);
             Some(&own)
         }
         (Mesher::Tin, _) => None,

@@ -141,8 +141,10 @@ impl Curved {
             return f64::INFINITY;
         }
         let w = (x1 - x0 + 1) as usize;
-        let mut truth: Vec<Option<([f64; 3], [f64; 3])>> = vec![None; w * (z1 - z0 + 1) as usize];
-        let mut best = vec![f64::INFINITY; truth.len()];
+        // Each sample's true place is worked out again for each triangle
+        // near it (a sample on an edge twice): held for a whole top chunk
+        // it would take 56 bytes a sample.
+        let mut best = vec![f64::INFINITY; w * (z1 - z0 + 1) as usize];
         let verts = flat.surface.grid_vertices(self.spacing);
         let mut lost = 0usize;
         for t in &flat.surface.triangles {
@@ -159,10 +161,7 @@ impl Curved {
                     return;
                 }
                 let at = (i - z0 as usize) * w + (j - x0 as usize);
-                if truth[at].is_none() {
-                    truth[at] = self.sample(i, j, f64::from(s));
-                }
-                let Some((p, u)) = truth[at] else {
+                let Some((p, u)) = self.sample(i, j, f64::from(s)) else {
                     lost += 1;
                     return;
                 };
