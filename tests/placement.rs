@@ -748,3 +748,37 @@ fn a_one_kilometre_grid_at_89_9_degrees_north_keeps_the_flat_frame_within_its_er
     assert!(e["vertical_m"].as_f64().unwrap().abs() < 0.05 && e["horizontal_m"].as_f64().unwrap() < 0.01, "{e}");
     crate::common::verified_against(&out, &[dem]);
 }
+
+#[test]
+fn a_steep_regional_grid_morphs_onto_its_parents_in_the_curved_frame() {
+    // 4° × 4° of sharp ridges and cliffs at 45° N: where a steep child
+    // triangle's chord sags more than its flatter parent's, the parent must
+    // split there too, or the child's morph target leaves the parent's
+    // surface (as it once did, by up to δ of the parent).
+    let tmp = tempfile::tempdir().unwrap();
+    let (n, cell) = (257usize, 4.0 / 256.0);
+    let dem = tmp.path().join("ridges.asc");
+    let mut text = format!(
+        "ncols {n}\nnrows {n}\nxllcorner {}\nyllcorner {}\ncellsize {cell}\n",
+        5.0 - cell / 2.0,
+        43.0 - cell / 2.0
+    );
+    for i in 0..n {
+        let row: Vec<String> = (0..n)
+            .map(|j| {
+                let (x, z) = (j as f64, i as f64);
+                let ridge = 2500.0 * ((x * 0.21).sin() * (z * 0.17).cos()).abs();
+                let cliff = if (i * 7 + j * 3) % 23 < 4 { 600.0 } else { 0.0 };
+                format!("{:.1}", ridge + cliff)
+            })
+            .collect();
+        text += &row.join(" ");
+        text += "\n";
+    }
+    std::fs::write(&dem, text).unwrap();
+    std::fs::write(dem.with_extension("prj"), "+proj=longlat +datum=WGS84 +no_defs").unwrap();
+    let (_t, out, report) = build_ok(&dem, 2.0);
+    assert_eq!(report.frame, terrachunk::geodesy::FrameKind::Curved);
+    let r = crate::common::verified_against(&out, &[dem]);
+    assert!(r.levels.len() >= 3, "{:?}", r.levels.keys());
+}
