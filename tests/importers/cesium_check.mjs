@@ -13,7 +13,8 @@
 //   2 px on screen) of the grid centre that proj4js (an independent
 //   projection library) computes from extras.terrachunk.georef, and the
 //   north-west corner sample lands within 1 m + 0.5 % of its distance of
-//   where proj4js puts it (the tileset is planar: see src/geodesy.rs);
+//   where proj4js puts it (a planar tileset's grid corner; a curved one's
+//   true place in its frame: see src/geodesy/);
 // - with the camera close to a deepest-level tile, refinement reaches the
 //   deepest level (tileVisible events of the last frame, by the tiles'
 //   extras.terrachunk.level).
@@ -84,6 +85,30 @@ const centreSrc = [g.origin[0] + (g.step[0] * (w - 1)) / 2, g.origin[1] + (g.ste
 const expectCentre = def ? toLonLat(centreSrc) : null;
 const expectCorner = def ? toLonLat(g.origin) : null;
 const placed = Array.isArray(ts.root.transform);
+
+// Where the tileset has the north-west corner sample at height 0: grid
+// metres (0, 0, 0) in the planar frame; in the curved frame its true place,
+// the ENU coordinates (at the placement's centre) of its WGS 84 position
+// as proj4js gives it, shifted by the placement's centre.
+function ecef(lonDeg, latDeg, h) {
+  const a = 6378137.0, f = 1 / 298.257223563, e2 = f * (2 - f);
+  const [lon, lat] = [lonDeg, latDeg].map((d) => (d * Math.PI) / 180);
+  const n = a / Math.sqrt(1 - e2 * Math.sin(lat) ** 2);
+  return [(n + h) * Math.cos(lat) * Math.cos(lon), (n + h) * Math.cos(lat) * Math.sin(lon), (n * (1 - e2) + h) * Math.sin(lat)];
+}
+function cornerLocal() {
+  const p = ex.placement;
+  if (!p || p.frame !== "curved" || !expectCorner) return [0, 0, 0];
+  const [lon, lat] = [p.lon_deg, p.lat_deg].map((d) => (d * Math.PI) / 180);
+  const o = ecef(p.lon_deg, p.lat_deg, p.height_m);
+  const q = ecef(expectCorner[0], expectCorner[1], 0);
+  const d = q.map((v, k) => v - o[k]);
+  const east = [-Math.sin(lon), Math.cos(lon), 0];
+  const north = [-Math.sin(lat) * Math.cos(lon), -Math.sin(lat) * Math.sin(lon), Math.cos(lat)];
+  const up = [Math.cos(lat) * Math.cos(lon), Math.cos(lat) * Math.sin(lon), Math.sin(lat)];
+  const dot = (u) => u[0] * d[0] + u[1] * d[1] + u[2] * d[2];
+  return [p.centre[0] + dot(east), p.centre[1] + dot(north), dot(up)];
+}
 
 // The deepest-level tile nearest the grid centre: the close view's target.
 const cx = ((w - 1) / 2) * ex.spacing_m[0];
@@ -188,7 +213,7 @@ try {
   await settle("overview");
   const far = await page.evaluate(() => window.tc.report());
   if (def && placed) {
-    placement = await page.evaluate(([a, b]) => window.tc.placement(a, b, [0, 0, 0]), [expectCentre, expectCorner]);
+    placement = await page.evaluate(([a, b, c]) => window.tc.placement(a, b, c), [expectCentre, expectCorner, cornerLocal()]);
   }
   if (shot) await page.screenshot({ path: shot });
 
