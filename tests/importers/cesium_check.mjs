@@ -1,7 +1,7 @@
 // CesiumJS on a terrachunk tileset (DESIGN.md promise 5), in Debian's
 // headless Chromium driven by playwright-core, served from 127.0.0.1 only.
 //
-//   node cesium_check.mjs TILESET_DIR [--screenshot docs/cesium.png] [--close-shot PNG]
+//   node cesium_check.mjs TILESET_DIR [--dem DEM.tif] [--screenshot docs/cesium.png] [--close-shot PNG]
 //
 // Loads tileset.json with Cesium3DTileset.fromUrl (no Cesium ion, no imagery,
 // no terrain: the bare WGS 84 ellipsoid), with maximumScreenSpaceError = the
@@ -17,7 +17,10 @@
 //   true place in its frame: see src/geodesy/);
 // - with the camera close to a deepest-level tile, refinement reaches the
 //   deepest level (tileVisible events of the last frame, by the tiles'
-//   extras.terrachunk.level).
+//   extras.terrachunk.level);
+// - there, at three DEM samples inside that tile (heights read from the
+//   GeoTIFF by geotiff.js, places by proj4js), the terrain Cesium draws
+//   (scene.clampToHeight along the normal) is within the leaf δ of the DEM.
 // Prints a short report (with the glTF extensions the target tile requires,
 // so that a --compress run shows what Cesium decoded); exits 1 on any failure.
 
@@ -26,6 +29,7 @@ import http from "node:http";
 import path from "node:path";
 import { fileURLToPath } from "node:url";
 
+import { fromFile } from "geotiff";
 import { chromium } from "playwright-core";
 import proj4 from "proj4";
 
@@ -37,6 +41,7 @@ const opt = (name) => {
   return i >= 0 ? args[i + 1] : undefined;
 };
 const shot = opt("--screenshot");
+const demFile = opt("--dem");
 const closeShot = opt("--close-shot");
 const chromiumPath = process.env.CHROMIUM ?? "/usr/bin/chromium";
 if (!fs.existsSync(path.join(tilesetDir, "tileset.json"))) {
@@ -131,6 +136,28 @@ const targetUri = allTiles(ts.root).find((t) => {
 }).content.uri;
 const required = glbJson(path.join(tilesetDir, targetUri)).extensionsRequired ?? [];
 
+// Three samples inside the target tile (0.3, 0.55 and 0.8 of the way
+// along its diagonal, mostly not vertices) with their heights read from the DEM by
+// geotiff.js, where the DEM is a GeoTIFF and its CRS has a proj4js
+// expectation: Cesium's terrain there must lie within the leaf δ of them.
+async function readBackSamples() {
+  if (!demFile || !def || !/\.tiff?$/i.test(demFile)) return [];
+  const fp = glbJson(path.join(tilesetDir, targetUri)).nodes[0].extras.terrachunk.footprint;
+  const image = await (await fromFile(demFile)).getImage();
+  const nodata = image.getGDALNoData();
+  const out = [];
+  for (const t of [0.3, 0.55, 0.8]) {
+    const j = Math.round(fp.x0 + t * (fp.x1 - fp.x0));
+    const i = Math.round(fp.z0 + t * (fp.z1 - fp.z0));
+    const [band] = await image.readRasters({ window: [j, i, j + 1, i + 1] });
+    const h = Number(band[0]);
+    if (!Number.isFinite(h) || h === nodata) continue;
+    out.push({ i, j, h, lonLat: toLonLat([g.origin[0] + g.step[0] * j, g.origin[1] + g.step[1] * i]) });
+  }
+  return out;
+}
+const samples = await readBackSamples();
+
 // ---- A loopback-only static server --------------------------------------
 const roots = {
   "/cesium/": path.join(here, "node_modules", "cesium", "Build", "Cesium"),
@@ -221,6 +248,8 @@ try {
   await settle("close view");
   report = await page.evaluate(() => window.tc.report());
   report.farVisibleByLevel = far.visibleByLevel;
+  const heights = await page.evaluate((pts) => window.tc.heightsAt(pts), samples.map((s) => s.lonLat));
+  samples.forEach((s, k) => { s.cesium = heights[k]; });
   if (closeShot) await page.screenshot({ path: closeShot });
 } finally {
   await browser.close();
@@ -251,6 +280,15 @@ if (placement) {
   if (!(placement.cornerErrorM <= 1 + 0.005 * cornerDist)) fail(`north-west corner ${placement.cornerErrorM.toFixed(2)} m from where proj4js puts it`);
 }
 
+// A sample's height as Cesium draws the terrain: within the leaf δ of the
+// DEM (and a centimetre for the depth read-back).
+const readBackTol = ex.max_error_m * ex.vertical_scale + 0.01;
+for (const s of samples) {
+  const d = s.cesium == null ? Infinity : Math.abs(s.cesium - s.h * ex.vertical_scale);
+  if (!(d <= readBackTol)) fail(`terrain at sample (${s.i}, ${s.j}) reads ${s.cesium} m in Cesium, the DEM ${s.h} m (allowed ${readBackTol} m)`);
+}
+if (demFile && def && /\.tiff?$/i.test(demFile) && samples.length === 0) fail("no DEM sample to read back");
+
 const fmt = (o) => Object.entries(o).map(([l, n]) => `L${l}:${n}`).join(" ");
 const version = JSON.parse(fs.readFileSync(path.join(here, "node_modules", "cesium", "package.json"), "utf8")).version;
 console.log(`cesium ${version} in ${(await browser.version?.()) ?? "chromium"}, tileset ${ex.source.join(",")} (${deepest + 1} levels, tau ${ex.tau_max_px} px)`);
@@ -264,6 +302,12 @@ if (placement) {
   );
 } else {
   console.log(`cesium placement: not checked (${placed ? "no proj4 expectation" : "no root transform"} for ${JSON.stringify(g.crs)})`);
+}
+for (const s of samples) {
+  console.log(
+    `cesium read-back at sample (${s.i}, ${s.j}) lon/lat ${s.lonLat[0].toFixed(6)}, ${s.lonLat[1].toFixed(6)}: ` +
+      `terrain ${s.cesium?.toFixed(3)} m, DEM ${s.h.toFixed(3)} m, off by ${(s.cesium - s.h).toFixed(3)} m (leaf δ ${ex.max_error_m} m)`,
+  );
 }
 for (const f of failures) console.log(`cesium FAIL ${f}`);
 console.log(`cesium: ${failures.length} failures`);

@@ -100,7 +100,7 @@ for dem in "${dems[@]}"; do
   mkdir -p "$dir"
   run "blender ($dem)" "$work/venv/bin/python" "$here/blender_check.py" "$out" --render "$dir/blender_chunk.png"
   run "meshlab ($dem)" "$work/venv/bin/python" "$here/meshlab_check.py" "$out" "${nodata[@]}"
-  run "cesium ($dem)" node "$here/cesium_check.mjs" "$out" --screenshot "$dir/cesium.png" --close-shot "$work/cesium_close$n.png"
+  run "cesium ($dem)" node "$here/cesium_check.mjs" "$out" --dem "$dem" --screenshot "$dir/cesium.png" --close-shot "$work/cesium_close$n.png"
   n=$((n + 1))
 done
 if [ $status -ne 0 ]; then
