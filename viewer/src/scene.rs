@@ -483,6 +483,78 @@ mod tests {
         }
     }
 
+    /// A curved tileset (Mount St Helens at 2 m, where a flat frame would
+    /// miss the Earth by 5.7 m) loads with 3-vector morph deltas, and every
+    /// surface vertex of every child, moved by its delta as the shader
+    /// moves it at w = 1, lands on its parent's surface as loaded.
+    #[test]
+    fn a_curved_tileset_morphs_each_child_onto_its_parent() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/mount_st_helens_30m.tif");
+        let dir = tmp.path().join("out");
+        build(&BuildOptions {
+            inputs: vec![dem],
+            out: dir.clone(),
+            force: false,
+            config: Config { max_error_m: 2.0, ..Config::default() },
+            texture: TextureSource::None,
+            progress: false,
+            geoid: None,
+        })
+        .unwrap();
+        let index: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
+        assert_eq!(index["extras"]["terrachunk"]["placement"]["frame"], "curved");
+        let ts = Tileset::open(&dir).unwrap();
+        let (mut sideways, mut checked) = (0.0f32, 0);
+        // The first children of each level (a brute-force search per vertex).
+        let mut seen = std::collections::BTreeMap::new();
+        for (n, node) in ts.tree.nodes.iter().enumerate() {
+            let Some(p) = node.parent else { continue };
+            if *seen.entry(node.key.level).and_modify(|k| *k += 1).or_insert(1) > 2 {
+                continue;
+            }
+            let (child, parent) = (load_chunk(&ts.chunk_path(n)).unwrap(), load_chunk(&ts.chunk_path(p)).unwrap());
+            let world = |m: &ChunkMesh, i: u32, morph: bool| {
+                let v = &m.vertices[i as usize];
+                let d = if morph { v.morph } else { [0.0; 3] };
+                [0, 1, 2].map(|a| m.translation[a] + f64::from(v.pos[a]) + f64::from(d[a]))
+            };
+            let tris: Vec<[[f64; 3]; 3]> = parent.indices[..parent.surface_indices as usize]
+                .chunks_exact(3)
+                .map(|t| [world(&parent, t[0], false), world(&parent, t[1], false), world(&parent, t[2], false)])
+                .collect();
+            let mut used: Vec<u32> = child.indices[..child.surface_indices as usize].to_vec();
+            used.sort_unstable();
+            used.dedup();
+            for &i in &used {
+                let v = &child.vertices[i as usize];
+                sideways = sideways.max(v.morph[0].abs().max(v.morph[2].abs()));
+                let q = world(&child, i, true);
+                // The parent's triangle under the target in plan (within a
+                // 10⁻⁴ of its size: a target on its border is a chord
+                // point, which f32 may put a rounding outside), and its
+                // plane's height there.
+                let gap = tris
+                    .iter()
+                    .filter_map(|[a, b, c]| {
+                        let det = (b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2]);
+                        let l1 = ((q[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (q[2] - a[2])) / det;
+                        let l2 = ((b[0] - a[0]) * (q[2] - a[2]) - (q[0] - a[0]) * (b[2] - a[2])) / det;
+                        let l0 = 1.0 - l1 - l2;
+                        (l0.min(l1).min(l2) > -1e-4).then(|| (q[1] - (l0 * a[1] + l1 * b[1] + l2 * c[1])).abs())
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!(gap < 0.01, "{}: vertex {i}'s target is {gap} m off the parent's surface", node.uri);
+                checked += 1;
+            }
+        }
+        assert!(checked > 500, "{checked} vertices");
+        // The deltas are not vertical: the parent's chords are not where
+        // the flat frame's vertical lines would meet them.
+        assert!(sideways > 1e-4, "largest sideways delta {sideways} m");
+    }
+
     /// The Kattegat fixture built untextured at 0.5 m into `tmp/out`.
     fn kattegat_tileset(tmp: &Path) -> PathBuf {
         let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
