@@ -271,10 +271,11 @@ if (placement) {
   const cornerDist = Math.hypot(cx, cy);
   // A planar tileset's box is the grid's, centred on its centre. A curved
   // one's holds the grid turned by its convergence and bent onto the Earth
-  // (and where the DEM has data): its centre may lie aside by a few
-  // thousandths of the grid's size.
+  // (and where the DEM has data), its centre below the surface, where
+  // degrees narrow northwards: it may lie aside by up to a hundredth of the
+  // grid's size (California's 7° × 4°: 2.8 km at 379 km).
   const curved = ex.placement?.frame === "curved";
-  const [centreM, centrePx] = curved ? [2 + 0.005 * cornerDist, Infinity] : [2, 2];
+  const [centreM, centrePx] = curved ? [2 + 0.01 * cornerDist, Infinity] : [2, 2];
   if (!(placement.centreErrorM <= centreM)) fail(`bounding sphere centre ${placement.centreErrorM.toFixed(3)} m from the grid centre`);
   if (!(placement.centreErrorPx <= centrePx)) fail(`bounding sphere centre ${placement.centreErrorPx?.toFixed(2)} px from the grid centre on screen`);
   if (!(placement.cornerErrorM <= 1 + 0.005 * cornerDist)) fail(`north-west corner ${placement.cornerErrorM.toFixed(2)} m from where proj4js puts it`);
