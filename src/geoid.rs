@@ -61,7 +61,8 @@ impl Geoid {
             }
             let [dlon, dlat] = hf.georef.step;
             let [lon0, lat0] = hf.georef.origin;
-            Geoid::new(lat0, lon0, dlat, dlon, hf.height, hf.width, hf.heights).map_err(bad)?
+            let (rows, cols, values) = (hf.height, hf.width, hf.heights);
+            Geoid::checked(Geoid { lat0, lon0, dlat, dlon, rows, cols, values, wraps: false }).map_err(bad)?
         };
         Ok(geoid)
     }
@@ -88,18 +89,12 @@ impl Geoid {
             .map(|b| f32::from_be_bytes(b.try_into().expect("4 bytes")))
             .map(|v| if v == GTX_NODATA { f32::NAN } else { v })
             .collect();
-        Geoid::new(south, west, dlat, dlon, rows, cols, values)
+        Geoid::checked(Geoid { lat0: south, lon0: west, dlat, dlon, rows, cols, values, wraps: false })
     }
 
-    fn new(
-        lat0: f64,
-        lon0: f64,
-        dlat: f64,
-        dlon: f64,
-        rows: usize,
-        cols: usize,
-        values: Vec<f32>,
-    ) -> Result<Geoid, String> {
+    /// Checks a model read from a file (its `wraps` is worked out here).
+    fn checked(g: Geoid) -> Result<Geoid, String> {
+        let Geoid { lat0, lon0, dlat, dlon, rows, cols, ref values, .. } = g;
         let finite = [lat0, lon0, dlat, dlon].iter().all(|v| v.is_finite());
         if !finite || dlat == 0.0 || dlon <= 0.0 {
             return Err(format!(
@@ -117,7 +112,7 @@ impl Geoid {
         // Around the Earth with no repeated column (PROJ's grids repeat it,
         // and reach the first column's longitude again without wrapping).
         let wraps = ((cols as f64) * dlon - 360.0).abs() < dlon * 1e-6;
-        Ok(Geoid { lat0, lon0, dlat, dlon, rows, cols, values, wraps })
+        Ok(Geoid { wraps, ..g })
     }
 
     /// The undulation N at WGS 84 `(lat, lon)` degrees, metres, bilinear

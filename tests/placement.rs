@@ -196,17 +196,32 @@ fn lambert93(lat_deg: f64, lon_deg: f64) -> [f64; 2] {
 /// (projected; no linear-unit key, so the unit is the code's), PixelIsPoint,
 /// with sample (row, column) `at` on the point `xy`.
 fn write_projected_tif(path: &Path, epsg: u16, step: f64, at: (f64, f64), xy: [f64; 2]) {
+    projected_tif(path, epsg, (41, step), at, xy, |_, _| 0.0);
+}
+
+/// A projected GeoTIFF of `n` × `n` samples `step` apart (projected, no
+/// linear-unit key, PixelIsPoint), sample (row, column) `at` on the point
+/// `xy`, and the height `height(row, column)` at each sample.
+fn projected_tif(
+    path: &Path,
+    epsg: u16,
+    (n, step): (u32, f64),
+    at: (f64, f64),
+    xy: [f64; 2],
+    height: impl Fn(f64, f64) -> f32,
+) {
     use tiff::encoder::{TiffEncoder, colortype};
     use tiff::tags::Tag;
     let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
-    let mut img = enc.new_image::<colortype::Gray32Float>(41, 41).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(n, n).unwrap();
     let e = img.encoder();
     e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
     e.write_tag(Tag::ModelTiepointTag, &[at.1, at.0, 0.0, xy[0], xy[1], 0.0][..]).unwrap();
     // Projected model, PixelIsPoint, ProjectedCSType = epsg.
     let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, epsg];
     e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
-    img.write_data(&[0.0f32; 41 * 41]).unwrap();
+    let data: Vec<f32> = (0..n * n).map(|k| height(f64::from(k / n), f64::from(k % n))).collect();
+    img.write_data(&data).unwrap();
 }
 
 /// One published point of a CRS: its projected coordinates and its
@@ -697,25 +712,12 @@ fn the_curved_frame_refuses_settings_it_cannot_keep() {
     assert!(!out.exists());
 }
 
-/// A projected GeoTIFF (PixelIsPoint) of `n` × `n` samples `step` apart
-/// with sample (0, 0) on `xy`: hills 1–3 km high.
+/// A projected GeoTIFF of `n` × `n` samples `step` apart with sample
+/// (0, 0) on `xy`: hills 1–3 km high.
 fn projected_hills_tif(path: &Path, epsg: u16, n: u32, step: f64, xy: [f64; 2]) {
-    use tiff::encoder::{TiffEncoder, colortype};
-    use tiff::tags::Tag;
-    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
-    let mut img = enc.new_image::<colortype::Gray32Float>(n, n).unwrap();
-    let e = img.encoder();
-    e.write_tag(Tag::ModelPixelScaleTag, &[step, step, 0.0][..]).unwrap();
-    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, xy[0], xy[1], 0.0][..]).unwrap();
-    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 2, 3072, 0, 1, epsg];
-    e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
-    let data: Vec<f32> = (0..n * n)
-        .map(|k| {
-            let (i, j) = (f64::from(k / n), f64::from(k % n));
-            (2000.0 + 800.0 * (i * 0.09).sin() * (j * 0.05).cos() + 200.0 * ((i + 2.0 * j) * 0.4).sin()) as f32
-        })
-        .collect();
-    img.write_data(&data).unwrap();
+    projected_tif(path, epsg, (n, step), (0.0, 0.0), xy, |i, j| {
+        (2000.0 + 800.0 * (i * 0.09).sin() * (j * 0.05).cos() + 200.0 * ((i + 2.0 * j) * 0.4).sin()) as f32
+    });
 }
 
 #[test]

@@ -7,7 +7,7 @@
 //! the mesher keeps that sag inside δ ([`Globe::margin_m`]) and `verify`
 //! measures the result along the ellipsoid normal at every sample.
 
-use super::{EnuFrame, NotPlaced, SourceCrs, distance, ecef, probe_samples};
+use super::{EnuFrame, NotPlaced, SourceCrs, ecef, keeps_its_degrees, probe_samples};
 use crate::heightfield::Georef;
 
 /// The smallest radius of curvature of the WGS 84 ellipsoid: the meridian's
@@ -53,9 +53,8 @@ impl Globe {
         let name = source.name.clone();
         let off = || NotPlaced::OffTheEarth { name: name.clone(), x: src[0], y: src[1] };
         let (lat, lon) = source.to_wgs84(src).ok_or_else(off)?;
-        // As `Placement::of_grid` decides: a geographic grid whose datum moves
-        // it by less than a millimetre keeps its own degrees.
-        let degrees = source.geographic && distance(ecef(lat, lon, 0.0), ecef(src[1], src[0], 0.0)) < 1e-3;
+        // As `Placement::of_grid` decides.
+        let degrees = keeps_its_degrees(&source, src, (lat, lon));
         let (lat, lon) = if degrees { (src[1], src[0]) } else { (lat, lon) };
         let mut globe = Globe {
             source,
@@ -240,6 +239,7 @@ pub fn up(lat_deg: f64, lon_deg: f64) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geodesy::distance;
     use crate::heightfield::Crs;
 
     fn geographic(origin: [f64; 2], step: f64, n: usize) -> (Georef, [f64; 2]) {

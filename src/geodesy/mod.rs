@@ -263,10 +263,7 @@ impl Placement {
         // A geographic grid whose datum moves it by less than a millimetre
         // keeps its own degrees and the identity: its local tangent plane
         // is the ENU plane at the centre (`heightfield::LocalTangent`).
-        let tangent = source.geographic && {
-            let shift = distance(ecef(lat, lon, 0.0), ecef(src[1], src[0], 0.0));
-            shift < 1e-3
-        };
+        let tangent = keeps_its_degrees(&source, src, (lat, lon));
         if tangent {
             (lat, lon) = (src[1], src[0]);
         }
@@ -487,6 +484,13 @@ impl SourceCrs {
         }
         self.to_wgs84_radians(p).map(|(lat, _)| lat.cos())
     }
+}
+
+/// Whether a grid in `source` keeps its own degrees as WGS 84's: geographic,
+/// and its point `src` (longitude, latitude), which WGS 84 has at
+/// `(lat, lon)`, moved by less than a millimetre by its datum.
+fn keeps_its_degrees(source: &SourceCrs, src: [f64; 2], (lat, lon): (f64, f64)) -> bool {
+    source.geographic && distance(ecef(lat, lon, 0.0), ecef(src[1], src[0], 0.0)) < 1e-3
 }
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -37,13 +37,10 @@ impl Run<'_> {
         let t = Instant::now();
         // Skirts reach below any neighbour of level ≥ L − 1 in any morph state.
         let margin = self.tree.delta_m[(key.level as usize).saturating_sub(2)];
-        let mut chunk = Chunk {
+        let chunk = Chunk {
             delta_m: self.tree.delta_m[key.level as usize],
-            ..assemble(self.grid, self.hf.spacing_m, &mesh, margin)
+            ..assemble(self.grid, self.hf.spacing_m, &mesh, margin, self.globe)
         };
-        if let Some(globe) = self.globe {
-            bend(&mut chunk, &mesh, globe, self.hf.spacing_m);
-        }
         Timers::add(&self.timers.skirt_morph, t);
         Ok((mesh, chunk))
     }
@@ -140,10 +137,15 @@ impl Run<'_> {
 /// A chunk from its TIN: the written triangles' vertices as the surface
 /// (world f64, DEM normals), each with its morph target (the parent
 /// surface's height, as a y delta), and skirts hanging from its borders,
-/// whose top vertices carry the surface's morph deltas. Public for the
-/// `.glb` micro-benchmark (`benches/stages.rs`).
-pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64) -> Chunk {
+/// whose top vertices carry the surface's morph deltas; with a `globe`,
+/// then moved into the curved frame ([`bend`]). Public for the `.glb`
+/// micro-benchmark (`benches/stages.rs`).
+pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64, globe: Option<&Globe>) -> Chunk {
     let (used, indices) = written(mesh);
+    let targets: Vec<[f64; 3]> = match globe {
+        Some(_) => used.iter().map(|&(_, k)| mesh.parent_points[k]).collect(),
+        None => Vec::new(),
+    };
     let used: Vec<MeshVertex> = used.into_iter().map(|(v, _)| v).collect();
     let mut surface = Part {
         positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
@@ -156,7 +158,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64)
     surface.morph_dy = used.iter().zip(&parent_h).map(|(v, p)| p - v.h).collect();
     let grid_xz: Vec<(f64, f64)> = used.iter().map(|v| (v.x, v.z)).collect();
     let skirt = build_skirt(grid, mesh.footprint, &surface, &grid_xz, &parent_h, margin_m);
-    Chunk {
+    let mut chunk = Chunk {
         key: mesh.key,
         footprint: mesh.footprint,
         delta_m: mesh.delta_m,
@@ -164,19 +166,21 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64)
         surface,
         surface_grid: grid_xz,
         skirt,
+    };
+    if let Some(globe) = globe {
+        bend(&mut chunk, &targets, globe, spacing);
     }
+    chunk
 }
 
 /// Moves a chunk assembled in grid metres into the curved frame: every
 /// vertex to the world position of its grid point and height, its normal
 /// turned from the grid's axes to the local ones there, and its morph
-/// delta to the parent's written surface (`mesh.parent_points`, which the
-/// bintree carries down its edges). Skirt tops keep their surface
-/// vertex's delta and bottoms 0, as in the flat frame; a bottom hangs
-/// along the normal.
-pub fn bend(chunk: &mut Chunk, mesh: &ChunkMesh, globe: &Globe, spacing: [f64; 2]) {
-    let (used, _) = written(mesh);
-    let targets: Vec<[f64; 3]> = used.iter().map(|&(_, k)| mesh.parent_points[k]).collect();
+/// delta to the parent's written surface (`targets`, per surface vertex:
+/// `ChunkMesh::parent_points`, which the bintree carries down its edges).
+/// Skirt tops keep their surface vertex's delta and bottoms 0, as in the
+/// flat frame; a bottom hangs along the normal.
+fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], globe: &Globe, spacing: [f64; 2]) {
     let key = |p: &[f64; 3]| p.map(f64::to_bits);
     let surface = &mut chunk.surface;
     // Skirts hang from the border: only border vertices can be their tops.

@@ -267,6 +267,7 @@ fn not_placed(hf: &Heightfield) -> Option<String> {
 }
 
 pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &ChunkTree) -> TilesetExtras {
+    let curved = curved(hf, &opts.config);
     TilesetExtras {
         generator: format!("terrachunk {}", env!("CARGO_PKG_VERSION")),
         grid: GridSize { width: hf.width as u32, height: hf.height as u32 },
@@ -280,7 +281,7 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
         geoid: None,
         georef: hf.georef.clone(),
         placement: Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).ok().map(|p| {
-            let p = if curved(hf, &opts.config) { p.curved() } else { p };
+            let p = if curved { p.curved() } else { p };
             match &opts.geoid {
                 Some(model) => p.with_geoid(&dem::file_name(model)),
                 None => p,
@@ -288,7 +289,7 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
         }),
         morph: MorphConvention {
             target: "parent".into(),
-            delta: if curved(hf, &opts.config) {
+            delta: if curved {
                 "POSITION offset (x, y, z): base + delta lies on the parent chunk's surface as written, at the \
                  point of the parent triangle with the vertex's grid barycentric coordinates; skirt bottom \
                  vertices have delta 0"
@@ -313,29 +314,27 @@ pub(super) fn tileset_extras(hf: &Heightfield, opts: &BuildOptions, tree: &Chunk
 /// (`config::Frame`; a `curved` setting the grid cannot take is refused by
 /// [`globe`] first).
 pub(crate) fn curved(hf: &Heightfield, cfg: &Config) -> bool {
-    match cfg.frame {
-        Frame::Flat => false,
-        Frame::Curved => true,
-        Frame::Auto => {
-            cfg.mesher == Mesher::Rtin
-                && cfg.compress == Compress::None
-                && Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m)
-                    .ok()
-                    .and_then(|p| p.flat_frame_error)
-                    .is_some_and(|e| e.worst_m() > FLAT_FRAME_SHARE * cfg.max_error_m)
-                && Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m).is_ok()
-        }
-    }
+    cfg.frame == Frame::Curved || matches!(globe(hf, cfg), Ok(Some(_)))
 }
 
 /// The curved frame's map of `hf`, where its chunks are written in it.
 pub(crate) fn globe(hf: &Heightfield, cfg: &Config) -> Result<Option<Globe>, BuildError> {
-    if !curved(hf, cfg) {
-        return Ok(None);
+    let map = || Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m);
+    match cfg.frame {
+        Frame::Flat => Ok(None),
+        Frame::Curved => map()
+            .map(Some)
+            .map_err(|why| BuildError::Frame(format!("{}: the grid cannot be placed on the Earth: {why}", hf.source))),
+        Frame::Auto => {
+            let far = cfg.mesher == Mesher::Rtin
+                && cfg.compress == Compress::None
+                && Placement::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m)
+                    .ok()
+                    .and_then(|p| p.flat_frame_error)
+                    .is_some_and(|e| e.worst_m() > FLAT_FRAME_SHARE * cfg.max_error_m);
+            Ok(far.then(|| map().ok()).flatten())
+        }
     }
-    Globe::of_grid(&hf.georef, hf.width, hf.height, hf.spacing_m)
-        .map(Some)
-        .map_err(|why| BuildError::Frame(format!("{}: the grid cannot be placed on the Earth: {why}", hf.source)))
 }
 
 /// Each worker's stack as std gives it (2 MiB) and the signal stack std

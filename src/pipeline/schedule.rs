@@ -137,10 +137,10 @@ pub(crate) fn counted_refine(
     mut refine: u32,
     field: &mut Option<Rtin>,
 ) -> u32 {
+    let sag = sag(hf, cfg);
     loop {
         let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
         let step = height_step(hf, &tree, cfg);
-        let sag = sag(hf, cfg);
         if !field.as_ref().is_some_and(|f| f.serves(&tree, step, sag)) {
             *field = Some(Rtin::new(grid, &tree, step, sag));
         }
