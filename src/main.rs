@@ -77,7 +77,7 @@ enum Command {
 
 #[derive(Args)]
 struct BuildArgs {
-    /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr.
+    /// DEM file(s): GeoTIFF, PNG (16/8-bit gray, Terrain-RGB), .hgt, .asc, .bt, .exr, .vrt (GeoTIFF mosaic).
     #[arg(required_unless_present = "manifest")]
     dem: Vec<PathBuf>,
     /// Output directory.

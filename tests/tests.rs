@@ -18,3 +18,4 @@ mod shard;
 mod texture;
 mod verify_trust;
 mod viewer;
+mod vrt;

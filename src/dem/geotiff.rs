@@ -114,6 +114,17 @@ fn open(path: &Path) -> Result<Opened, DemError> {
 
 /// Read a GeoTIFF DEM.
 pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
+    let (mut hf, raw) = load_unplaced(path)?;
+    if let Some(raw) = raw {
+        place_grid(&mut hf, raw);
+    }
+    Ok(hf)
+}
+
+/// The samples as the file stores them (rows and columns in file order, a
+/// ungeoreferenced grid) and the georeference its tags give, not applied
+/// yet ([`place_grid`]): what a mosaic of GeoTIFFs assembles from.
+pub(crate) fn load_unplaced(path: &Path) -> Result<(Heightfield, Option<RawGeoref>), DemError> {
     let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
     let n = sample_count(path, width, height)?;
@@ -133,10 +144,9 @@ pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
         place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
     })?;
 
-    let mut hf = Heightfield::ungeoreferenced(width, height, heights, file_name(path));
+    let hf = Heightfield::ungeoreferenced(width, height, heights, file_name(path));
     let mut dec = dec.with_limits(tag_limits(file_len));
-    georeference(path, &mut dec, &mut hf)?;
-    Ok(hf)
+    Ok((hf, raw_georef(path, &mut dec)?))
 }
 
 /// Limits for reading tags: a tag cannot hold more values than the file has
@@ -450,6 +460,7 @@ fn place(
 /// The georeference as the file stores it, before the grid is turned
 /// north-up: model coordinates of the centre of pixel (0, 0), the step per
 /// pixel (signs as stored), the CRS and the projected linear unit in metres.
+#[derive(Clone, Debug)]
 pub(crate) struct RawGeoref {
     /// Centre of pixel (0, 0) in model units.
     pub origin: [f64; 2],
@@ -529,11 +540,9 @@ fn raw_georef<R: std::io::Read + std::io::Seek>(
     Ok(Some(RawGeoref { origin, step, crs, unit_m }))
 }
 
-/// Fill `hf.georef` and `hf.spacing_m` from the GeoTIFF tags.
-fn georeference(path: &Path, dec: &mut TiffDecoder, hf: &mut Heightfield) -> Result<(), DemError> {
-    let Some(RawGeoref { mut origin, mut step, crs, unit_m }) = raw_georef(path, dec)? else {
-        return Ok(());
-    };
+/// Fill `hf.georef` and `hf.spacing_m` from a GeoTIFF georeference.
+pub(crate) fn place_grid(hf: &mut Heightfield, raw: RawGeoref) {
+    let RawGeoref { mut origin, mut step, crs, unit_m } = raw;
     // A grid stored south-up or east-to-west is turned north-up, west-east.
     if step[1] > 0.0 {
         flip_rows(hf);
@@ -572,7 +581,6 @@ fn georeference(path: &Path, dec: &mut TiffDecoder, hf: &mut Heightfield) -> Res
             // unless overridden; the origin and step are still recorded.
         }
     }
-    Ok(())
 }
 
 /// An 8-bit colour image read from a TIFF (for textures, not DEMs).

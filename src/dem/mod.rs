@@ -19,6 +19,7 @@
 //! | ESRI ASCII grid | `.asc` | text | header, and the CRS a `.prj` beside it names (an EPSG code in its WKT, or PROJ.4 text; else projected metres of no named CRS) |
 //! | VTP BT 1.1–1.3 | `.bt` | int16, int32, float32 | header |
 //! | OpenEXR | `.exr` | one float16/float32 channel | none |
+//! | GDAL VRT | `.vrt` | a mosaic of GeoTIFFs as `gdalbuildvrt` writes it (`vrt.rs`) | the VRT's, checked against each tile's |
 //!
 //! A file without a georeference gets a spacing of 1 m on both axes unless
 //! [`LoadOptions::spacing_m`] says otherwise.
@@ -34,6 +35,7 @@ mod exr;
 pub(crate) mod geotiff;
 mod hgt;
 mod prj;
+mod vrt;
 
 pub(crate) use hgt::is_hgt;
 mod png;
@@ -261,6 +263,21 @@ pub fn load(paths: &[PathBuf], opts: &LoadOptions) -> Result<Heightfield, DemErr
     Ok(hf)
 }
 
+/// The files a `.vrt` mosaic reads, in its order (none for any other
+/// input): what a sharded build's manifest hashes besides the VRT.
+pub fn vrt_sources(path: &Path) -> Result<Vec<PathBuf>, DemError> {
+    if !path.is_file() || !(by_extension(path) == Some(Format::Vrt) || sniff_file(path)? == Some(Format::Vrt)) {
+        return Ok(Vec::new());
+    }
+    vrt::sources(path)
+}
+
+fn sniff_file(path: &Path) -> Result<Option<Format>, DemError> {
+    let mut head = Vec::with_capacity(64);
+    std::fs::File::open(path).and_then(|f| f.take(64).read_to_end(&mut head)).map_err(|e| io_error(path, e))?;
+    Ok(sniff(&head))
+}
+
 /// Reject overrides no grid could use, before reading anything.
 fn check_options(path: &Path, opts: &LoadOptions) -> Result<(), DemError> {
     if let Some(s) = opts.vertical_scale
@@ -285,6 +302,7 @@ enum Format {
     Asc,
     Bt,
     Exr,
+    Vrt,
 }
 
 /// Recognise a format from the first bytes of the file.
@@ -306,6 +324,9 @@ fn sniff(head: &[u8]) -> Option<Format> {
         return Some(Format::Bt);
     }
     let text = head.trim_ascii_start();
+    if text.starts_with(b"<VRTDataset") {
+        return Some(Format::Vrt);
+    }
     if text.len() >= 5 && text[..5].eq_ignore_ascii_case(b"ncols")
         || text.len() >= 5 && text[..5].eq_ignore_ascii_case(b"nrows")
     {
@@ -323,6 +344,7 @@ fn by_extension(path: &Path) -> Option<Format> {
         "asc" => Format::Asc,
         "bt" => Format::Bt,
         "exr" => Format::Exr,
+        "vrt" => Format::Vrt,
         _ => return None,
     })
 }
@@ -347,7 +369,7 @@ fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
                 path,
                 format!(
                     "not a recognised DEM ({ext}, first bytes {shown}); terrachunk reads \
-                     GeoTIFF, PNG, SRTM .hgt, ESRI .asc, VTP .bt and OpenEXR"
+                     GeoTIFF, PNG, SRTM .hgt, ESRI .asc, VTP .bt, OpenEXR and GDAL .vrt mosaics of GeoTIFFs"
                 ),
             ));
         }
@@ -359,6 +381,7 @@ fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
         Format::Asc => asc::load(path),
         Format::Bt => bt::load(path),
         Format::Exr => self::exr::load(path),
+        Format::Vrt => vrt::load(path),
     }
 }
 

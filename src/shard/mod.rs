@@ -586,6 +586,8 @@ fn manifest_hash(m: &Manifest) -> Result<String, ShardError> {
             files.extend(inside.into_iter().filter(|f| f.is_file()));
         } else {
             files.push(p.clone());
+            // A VRT's tiles are input as much as the VRT itself.
+            files.extend(crate::dem::vrt_sources(p).map_err(BuildError::from)?);
         }
     }
     for f in &files {
