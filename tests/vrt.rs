@@ -216,3 +216,23 @@ fn a_sharded_build_of_a_vrt_matches_the_single_build_and_refuses_a_changed_tile(
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("changed since the plan"), "{err}");
 }
+
+/// A VRT cut and flipped anywhere, or claiming a raster its tiles cannot
+/// fill, is refused with a message: never a panic, never a huge allocation.
+#[test]
+fn a_mangled_or_inflated_vrt_is_refused_without_a_panic() {
+    use crate::common::{Mangler, mangle_rounds};
+    let dir = tempfile::tempdir().unwrap();
+    let (vrt, tiles) = cut_helens(dir.path(), 0.0);
+    let bytes = std::fs::read(&vrt).unwrap();
+    let mut mangler = Mangler::new(0x9e37_79b9_7f4a_7c15);
+    let p = dir.path().join("mangled.vrt");
+    for k in 0..mangle_rounds() * 4 {
+        std::fs::write(&p, mangler.mangle(&bytes, k)).unwrap();
+        let _ = load(std::slice::from_ref(&p), &LoadOptions::default());
+    }
+    let huge = dir.path().join("huge.vrt");
+    write_vrt(&huge, (40_000, 40_000), &tiles, 1);
+    let err = load(&[huge], &LoadOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("huge.vrt") && err.contains("refused before decoding"), "{err}");
+}
