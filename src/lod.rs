@@ -137,6 +137,23 @@ pub fn shown_error_px(rho: f64, w: f64, delta_m: f64, delta_parent_m: Option<f64
     }
 }
 
+/// The weight a chunk morphing in from its parent's shape (it replaced its
+/// parent late: its scheduled weight `scheduled` < 1) is drawn at next,
+/// coming from weight `from` (1: the parent's shape, drawn the frame
+/// before): the largest weight at which it is shown within τ, where getting
+/// there moves no vertex by more than τ/2 pixels, an invisible step;
+/// otherwise the weight that moves them τ/2. A morph delta is at most δ_p,
+/// `rho`/δ pixels a metre.
+pub fn late_weight(rho: f64, tau_px: f64, (delta_m, delta_parent_m): (f64, f64), from: f64, scheduled: f64) -> f64 {
+    let from = from.clamp(0.0, 1.0);
+    if !(rho > 0.0 && delta_m > 0.0 && delta_parent_m > delta_m) {
+        return from;
+    }
+    let within = (tau_px / rho - 1.0) * delta_m / (delta_parent_m - delta_m);
+    let step = from - tau_px / 2.0 * delta_m / (rho * delta_parent_m);
+    within.max(step).clamp(scheduled.clamp(0.0, from), from)
+}
+
 /// One chunk of the tree, as the selection needs it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LodNode {
@@ -757,5 +774,28 @@ mod tests {
         assert_eq!(t.parent_delta(1), Some(4.0));
         assert_eq!(t.leaves(), vec![1]);
         assert!(LodTree::from_tileset_json(&serde_json::json!({"root": {}})).is_err());
+    }
+
+    /// A child that comes late starts within τ where that is an invisible
+    /// step from its parent's shape, else steps τ/2 and fades from there;
+    /// never below its schedule nor above where it was.
+    #[test]
+    fn a_late_child_starts_within_tau_where_the_step_is_invisible() {
+        let shown = |rho: f64, w: f64| shown_error_px(rho, w, 1.0, Some(2.0));
+        let moved = |rho: f64, from: f64, w: f64| (from - w) * rho * 2.0;
+        // The parent was drawn at 1.07 px at τ = 1: its child starts at τ.
+        let w = late_weight(0.535, 1.0, (1.0, 2.0), 1.0, 0.0);
+        assert!((shown(0.535, w) - 1.0).abs() < 1e-12 && moved(0.535, 1.0, w) <= 0.5, "{w}");
+        // Far over τ: a step of τ/2, still above τ, left to the fade.
+        let w = late_weight(3.0, 1.0, (1.0, 2.0), 1.0, 0.0);
+        assert!((moved(3.0, 1.0, w) - 0.5).abs() < 1e-12 && shown(3.0, w) > 1.0, "{w}");
+        // The next frame, nearer: again within τ by an invisible step.
+        let next = late_weight(0.55, 1.0, (1.0, 2.0), 0.87, 0.0);
+        assert!((shown(0.55, next) - 1.0).abs() < 1e-12 && moved(0.55, 0.87, next) <= 0.5, "{next}");
+        // Never below the schedule, never above where it was.
+        assert_eq!(late_weight(0.2, 1.0, (1.0, 2.0), 1.0, 0.0), 1.0, "the parent's shape is within τ");
+        assert_eq!(late_weight(0.2, 1.0, (1.0, 2.0), 0.7, 0.0), 0.7);
+        assert_eq!(late_weight(0.6, 1.0, (1.0, 2.0), 1.0, 0.9), 0.9);
+        assert_eq!(late_weight(0.6, 1.0, (1.0, 1.0), 1.0, 0.0), 1.0);
     }
 }

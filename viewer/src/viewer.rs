@@ -206,8 +206,8 @@ pub struct Viewer {
     last_eye: Option<[f64; 3]>,
     /// Chunks drawn in the previous frame.
     drawn_before: HashSet<usize>,
-    /// Chunks morphing in: the frame their fade started.
-    fade_start: HashMap<usize, u64>,
+    /// Chunks morphing in from their parent's shape: the weight drawn last.
+    fading: HashMap<usize, f64>,
     /// Decoded chunks that did not fit the memory budget this frame.
     over_budget: HashSet<usize>,
 }
@@ -236,7 +236,7 @@ impl Viewer {
             frame_no: 0,
             last_eye: None,
             drawn_before: HashSet::new(),
-            fade_start: HashMap::new(),
+            fading: HashMap::new(),
             over_budget: HashSet::new(),
         };
         // The first frame draws the whole terrain, coarse: never a blank one.
@@ -248,7 +248,7 @@ impl Viewer {
     /// Forgets the camera's motion and the fades (a jump, or a still).
     pub fn reset_motion(&mut self) {
         self.last_eye = None;
-        self.fade_start.clear();
+        self.fading.clear();
         self.drawn_before.clear();
     }
 
@@ -405,28 +405,32 @@ impl Viewer {
     }
 
     /// A chunk drawn where its parent was drawn the frame before, with a
-    /// scheduled weight below 1, would pop: it starts at weight 1 and comes
-    /// down to its schedule over `fade_frames` frames.
+    /// scheduled weight below 1, would pop: it starts near its parent's
+    /// shape and comes down to its schedule by at least 1/`fade_frames` a
+    /// frame, faster where an invisible step keeps it within τ
+    /// (`lod::late_weight`).
     fn fade(&mut self, sel: &mut Selection) {
         let nodes = &self.tileset.tree.nodes;
         let fade = f64::from(self.opts.fade_frames);
         let mut drawn = HashSet::with_capacity(sel.draws.len());
         for d in &mut sel.draws {
             drawn.insert(d.node);
-            let split = nodes[d.node].parent.is_some_and(|p| self.drawn_before.contains(&p));
-            if split && d.weight < 1.0 && fade > 0.0 {
-                self.fade_start.insert(d.node, self.frame_no);
-            }
-            if let Some(&start) = self.fade_start.get(&d.node) {
-                let left = 1.0 - (self.frame_no - start) as f64 / fade;
-                if left <= d.weight || left <= 0.0 {
-                    self.fade_start.remove(&d.node);
-                } else {
-                    d.weight = left;
-                }
+            let parent = nodes[d.node].parent.filter(|p| self.drawn_before.contains(p));
+            let from = match parent {
+                Some(_) if d.weight < 1.0 && fade > 0.0 => Some((1.0, 0.0)),
+                _ => self.fading.get(&d.node).map(|&w| (w, 1.0 / fade)),
+            };
+            let Some((from, slide)) = from else { continue };
+            let deltas = (nodes[d.node].delta_m, self.tileset.tree.parent_delta(d.node).unwrap_or(0.0));
+            let w = lod::late_weight(d.rho, self.opts.tau_px, deltas, from, d.weight).min(from - slide);
+            if w <= d.weight {
+                self.fading.remove(&d.node);
+            } else {
+                d.weight = w;
+                self.fading.insert(d.node, w);
             }
         }
-        self.fade_start.retain(|n, _| drawn.contains(n));
+        self.fading.retain(|n, _| drawn.contains(n));
         self.drawn_before = drawn;
     }
 
@@ -465,7 +469,7 @@ impl Viewer {
             pending: self.pager.pending(),
             missing: sel.requests.len(),
             prefetch: sel.prefetch.len(),
-            fading: self.fade_start.len(),
+            fading: self.fading.len(),
             resident_bytes: self.resident_bytes,
             ..Default::default()
         };
