@@ -236,3 +236,34 @@ fn a_mangled_or_inflated_vrt_is_refused_without_a_panic() {
     let err = load(&[huge], &LoadOptions::default()).unwrap_err().to_string();
     assert!(err.contains("huge.vrt") && err.contains("refused before decoding"), "{err}");
 }
+
+/// Sources that draw parts of one file (`SrcRect` inside it) read just
+/// those parts, and the mosaic is the file.
+#[test]
+fn sources_drawing_parts_of_one_file_give_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = load(&[fixture("mount_st_helens_30m.tif")], &LoadOptions::default()).unwrap();
+    let (w, h) = (whole.width, whole.height);
+    std::fs::copy(fixture("mount_st_helens_30m.tif"), dir.path().join("helens.tif")).unwrap();
+    let mut s = format!("<VRTDataset rasterXSize=\"{w}\" rasterYSize=\"{h}\">\n");
+    s += &format!(
+        "  <GeoTransform>{}, {STEP}, 0, {}, 0, -{STEP}</GeoTransform>\n  <VRTRasterBand dataType=\"Int16\" band=\"1\">\n    \
+         <NoDataValue>-32767</NoDataValue>\n",
+        ORIGIN[0] - STEP / 2.0,
+        ORIGIN[1] + STEP / 2.0
+    );
+    for (x, y, sw, sh) in [(0, 0, 100, 300), (100, 0, w - 100, 300), (0, 300, w, h - 300)] {
+        s += &format!(
+            "    <SimpleSource><SourceFilename relativeToVRT=\"1\">helens.tif</SourceFilename><SourceBand>1</SourceBand>\
+             <SrcRect xOff=\"{x}\" yOff=\"{y}\" xSize=\"{sw}\" ySize=\"{sh}\"/><DstRect xOff=\"{x}\" yOff=\"{y}\" \
+             xSize=\"{sw}\" ySize=\"{sh}\"/></SimpleSource>\n"
+        );
+    }
+    s += "  </VRTRasterBand>\n</VRTDataset>\n";
+    let vrt = dir.path().join("parts.vrt");
+    std::fs::write(&vrt, s).unwrap();
+    let mosaic = load(&[vrt], &LoadOptions::default()).unwrap();
+    let bits = |v: &[f32]| v.iter().map(|h| if h.is_nan() { u32::MAX } else { h.to_bits() }).collect::<Vec<_>>();
+    assert!(bits(&mosaic.heights) == bits(&whole.heights));
+    assert_eq!((mosaic.georef.origin, mosaic.spacing_m), (whole.georef.origin, whole.spacing_m));
+}

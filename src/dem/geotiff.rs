@@ -125,12 +125,32 @@ pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
 /// ungeoreferenced grid) and the georeference its tags give, not applied
 /// yet ([`place_grid`]): what a mosaic of GeoTIFFs assembles from.
 pub(crate) fn load_unplaced(path: &Path) -> Result<(Heightfield, Option<RawGeoref>), DemError> {
+    let Window { heights, size: (width, height), georef, .. } = read_samples(path, None)?;
+    Ok((Heightfield::ungeoreferenced(width, height, heights, file_name(path)), georef))
+}
+
+/// The samples of `window` (`[column, row, width, height]`, inside the
+/// image) as [`load_unplaced`] reads them, decoding only the strips or
+/// tiles that meet it.
+pub(crate) fn load_window(path: &Path, window: [usize; 4]) -> Result<Window, DemError> {
+    read_samples(path, Some(window))
+}
+
+/// The samples of `window`, or of the whole image.
+fn read_samples(path: &Path, window: Option<[usize; 4]>) -> Result<Window, DemError> {
     let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
-    let n = sample_count(path, width, height)?;
+    let window = window.unwrap_or([0, 0, width, height]);
+    let [wx, wy, ww, wh] = window;
+    if ww == 0 || wh == 0 || wx.saturating_add(ww) > width || wy.saturating_add(wh) > height {
+        return Err(invalid(
+            path,
+            format!("a window of {ww} × {wh} samples at column {wx}, row {wy} is not inside its {width} × {height}"),
+        ));
+    }
+    let n = sample_count(path, ww, wh)?;
     check_layout(path, &mut dec)?;
     check_chunks_present(path, &mut dec, file_len, (width, height), 4)?;
-
     let nodata = match dec.find_tag(Tag::GdalNodata).map_err(err)? {
         Some(tiff::decoder::ifd::Value::Ascii(s)) => parse_nodata(path, &s)?,
         Some(other) => {
@@ -138,15 +158,54 @@ pub(crate) fn load_unplaced(path: &Path) -> Result<(Heightfield, Option<RawGeore
         }
         None => None,
     };
-
     let mut heights = vec![f32::NAN; n];
-    let dec = read_chunks(path, (dec, &fences), file_len, (width, height), 8, "samples", |chunk, [x0, y0, dw, dh]| {
-        place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata)
-    })?;
-
-    let hf = Heightfield::ungeoreferenced(width, height, heights, file_name(path));
+    let whole = window == [0, 0, width, height];
+    let mut scratch = Vec::new();
+    let (dec, decoded) = read_chunks(
+        path,
+        (dec, &fences),
+        file_len,
+        (width, height),
+        8,
+        ("samples", window),
+        |chunk, [x0, y0, dw, dh]| {
+            if whole {
+                return place(path, &mut heights, width, x0, y0, dw, dh, chunk, nodata);
+            }
+            scratch.clear();
+            scratch.resize(dw * dh, f32::NAN);
+            place(path, &mut scratch, dw, 0, 0, dw, dh, chunk, nodata).map_err(|e| match e {
+                DemError::Invalid { path, what } => {
+                    DemError::Invalid { path, what: format!("{what}, in the chunk at column {x0}, row {y0}") }
+                }
+                e => e,
+            })?;
+            // The part of the chunk inside the window.
+            let (c0, c1) = (x0.max(wx), (x0 + dw).min(wx + ww));
+            let (r0, r1) = (y0.max(wy), (y0 + dh).min(wy + wh));
+            for r in r0..r1 {
+                let src = &scratch[(r - y0) * dw + (c0 - x0)..(r - y0) * dw + (c1 - x0)];
+                heights[(r - wy) * ww + (c0 - wx)..(r - wy) * ww + (c1 - wx)].copy_from_slice(src);
+            }
+            Ok(())
+        },
+    )?;
     let mut dec = dec.with_limits(tag_limits(file_len));
-    Ok((hf, raw_georef(path, &mut dec)?))
+    Ok(Window { heights, size: (width, height), georef: raw_georef(path, &mut dec)?, decoded })
+}
+
+/// What [`load_window`] read.
+pub(crate) struct Window {
+    /// Row-major samples of the window, NaN = nodata.
+    pub heights: Vec<f32>,
+    /// The whole image: columns, rows.
+    pub size: (usize, usize),
+    /// The file's georeference, as stored.
+    pub georef: Option<RawGeoref>,
+    /// Strips or tiles decoded (the tests check that a window decodes only
+    /// those under it).
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub decoded: usize,
 }
 
 /// Limits for reading tags: a tag cannot hold more values than the file has
@@ -160,10 +219,11 @@ fn tag_limits(file_len: u64) -> Limits {
     limits
 }
 
-/// Decodes every strip or tile that lies on the image, in file order, and
-/// hands each to `take` with its first pixel and its size cropped to the
-/// image (`[x0, y0, width, height]`; the decoder crops edge tiles and the
-/// last strip alike). Extra planes or stray chunks beyond the image are
+/// Decodes every strip or tile that lies on the image and meets `window`
+/// (`[x0, y0, width, height]`), in file order, and hands each to `take`
+/// with its first pixel and its size cropped to the image (`[x0, y0,
+/// width, height]`; the decoder crops edge tiles and the last strip
+/// alike); returns the decoder and how many it decoded. Extra planes or stray chunks beyond the image are
 /// skipped. While decoding, the buffer limit is one chunk of at most
 /// `bytes_per_pixel`; `unit` names a pixel in the error for empty chunks.
 /// Each chunk is read only within the bytes its StripByteCounts or
@@ -174,9 +234,9 @@ fn read_chunks(
     file_len: u64,
     (width, height): (usize, usize),
     bytes_per_pixel: usize,
-    unit: &str,
+    (unit, window): (&str, [usize; 4]),
     mut take: impl FnMut(DecodingResult, [usize; 4]) -> Result<(), DemError>,
-) -> Result<TiffDecoder, DemError> {
+) -> Result<(TiffDecoder, usize), DemError> {
     let err = |e: TiffError| tiff_error(path, e);
     let (cw, ch) = dec.chunk_dimensions();
     let (cw, ch) = (cw as usize, ch as usize);
@@ -198,12 +258,17 @@ fn read_chunks(
     };
     let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(err)?;
     let counts = dec.get_tag_u64_vec(counts_tag).map_err(err)?;
+    let [wx, wy, ww, wh] = window;
+    let mut decoded = 0;
     for idx in 0..count {
         let (x0, y0) = match chunk_type {
             ChunkType::Strip => (0, idx as usize * ch),
             ChunkType::Tile => ((idx as usize % across) * cw, (idx as usize / across) * ch),
         };
         if x0 >= width || y0 >= height {
+            continue;
+        }
+        if x0 >= wx + ww || x0 + cw <= wx || y0 >= wy + wh || y0 + ch <= wy {
             continue;
         }
         let (Some(&offset), Some(&bytes)) = (offsets.get(idx as usize), counts.get(idx as usize)) else {
@@ -221,8 +286,9 @@ fn read_chunks(
             e => err(e),
         })?;
         take(chunk, [x0, y0, cw.min(width - x0), ch.min(height - y0)])?;
+        decoded += 1;
     }
-    Ok(dec)
+    Ok((dec, decoded))
 }
 
 /// Refuse, with a message a user understands, every layout that is not one
@@ -639,26 +705,38 @@ pub(crate) fn load_rgb8(path: &Path) -> Result<Rgb8Tiff, DemError> {
     check_chunks_present(path, &mut dec, file_len, (width, height), 3)?;
     let s = samples as usize;
     let mut rgb = vec![0u8; width * height * 3];
-    let dec = read_chunks(path, (dec, &fences), file_len, (width, height), s, "pixels", |chunk, [x0, y0, dw, dh]| {
-        let DecodingResult::U8(data) = chunk else {
-            return Err(corrupt(path, "8-bit samples decoded to another type"));
-        };
-        if data.len() < dh * dw * s {
-            return Err(corrupt(path, format!("a chunk at pixel ({x0}, {y0}) decoded to fewer pixels than its size")));
-        }
-        for r in 0..dh {
-            for c in 0..dw {
-                let src = &data[(r * dw + c) * s..];
-                let dst = &mut rgb[((y0 + r) * width + x0 + c) * 3..][..3];
-                if s == 1 {
-                    dst.fill(src[0]);
-                } else {
-                    dst.copy_from_slice(&src[..3]);
+    let whole = [0, 0, width, height];
+    let (dec, _) = read_chunks(
+        path,
+        (dec, &fences),
+        file_len,
+        (width, height),
+        s,
+        ("pixels", whole),
+        |chunk, [x0, y0, dw, dh]| {
+            let DecodingResult::U8(data) = chunk else {
+                return Err(corrupt(path, "8-bit samples decoded to another type"));
+            };
+            if data.len() < dh * dw * s {
+                return Err(corrupt(
+                    path,
+                    format!("a chunk at pixel ({x0}, {y0}) decoded to fewer pixels than its size"),
+                ));
+            }
+            for r in 0..dh {
+                for c in 0..dw {
+                    let src = &data[(r * dw + c) * s..];
+                    let dst = &mut rgb[((y0 + r) * width + x0 + c) * 3..][..3];
+                    if s == 1 {
+                        dst.fill(src[0]);
+                    } else {
+                        dst.copy_from_slice(&src[..3]);
+                    }
                 }
             }
-        }
-        Ok(())
-    })?;
+            Ok(())
+        },
+    )?;
     let mut dec = dec.with_limits(tag_limits(file_len));
     let georef = raw_georef(path, &mut dec)?;
     Ok(Rgb8Tiff { width, height, rgb, georef })
@@ -705,5 +783,39 @@ fn tiff_error(path: &Path, e: TiffError) -> DemError {
         TiffError::UnsupportedError(u) => unsupported(path, format!("TIFF: {u}")),
         TiffError::LimitsExceeded => unsupported(path, "TIFF exceeds the decoder's limits"),
         other => corrupt(path, format!("not a valid TIFF: {other}")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fixture(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
+    }
+
+    /// A window reads the samples the whole file has there, from the strips
+    /// or tiles under it alone.
+    #[test]
+    fn a_window_is_the_whole_files_samples_there_from_its_chunks_alone() {
+        for name in ["dfw_texas_srtm3.tif", "california_crop_deflate.tif", "mount_st_helens_30m.tif"] {
+            let path = fixture(name);
+            let all = read_samples(&path, None).unwrap();
+            let (w, h) = all.size;
+            for window in [[0, 0, w, h], [1, 2, 3, 4], [w / 3, h / 2, w / 2, h / 3], [w - 1, h - 1, 1, 1]] {
+                let part = load_window(&path, window).unwrap();
+                let [x0, y0, ww, wh] = window;
+                for r in 0..wh {
+                    for c in 0..ww {
+                        let (a, b) = (all.heights[(y0 + r) * w + x0 + c], part.heights[r * ww + c]);
+                        assert!(a.to_bits() == b.to_bits() || a.is_nan() && b.is_nan(), "{name} {window:?} ({r}, {c})");
+                    }
+                }
+                assert!(part.decoded <= all.decoded, "{name}");
+            }
+            let small = load_window(&path, [w / 2, h / 2, 2, 2]).unwrap();
+            assert!(small.decoded < all.decoded || all.decoded == 1, "{name}: {} of {}", small.decoded, all.decoded);
+            assert!(load_window(&path, [w - 1, 0, 2, 1]).is_err(), "{name}: a window past the image");
+        }
     }
 }

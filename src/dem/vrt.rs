@@ -7,6 +7,7 @@
 //! (`relativeToVRT` honoured), band 1, copied pixel for pixel: `SrcRect` and
 //! `DstRect` of one size (no resampling), clipped to the raster. A
 //! `ComplexSource` may carry `NODATA`, `ScaleOffset` and `ScaleRatio`.
+//! Only the strips or tiles of a source under its `SrcRect` are decoded.
 //! Later sources are drawn over earlier ones, as GDAL draws them, except
 //! that a source's nodata never covers another's data. Ground no source
 //! covers is nodata where the band has a `NoDataValue`, else 0, as in GDAL.
@@ -234,7 +235,10 @@ fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
     let mut heights = vec![fill; n];
     let mut placed: Option<RawGeoref> = None;
     for s in &vrt.sources {
-        let (tile, raw) = geotiff::load_unplaced(&s.file).map_err(|e| within(path, &s.file, e))?;
+        let [sx, sy, w, h] = s.src;
+        // Only the strips or tiles under SrcRect are decoded.
+        let tile = geotiff::load_window(&s.file, s.src).map_err(|e| within(path, &s.file, e))?;
+        let raw = tile.georef;
         let name = s.file.display();
         let Some(raw) = raw else {
             return Err(invalid(path, format!("source {name} has no georeference; a mosaic tile needs one")));
@@ -274,19 +278,6 @@ fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
                 ),
             ));
         }
-        let [sx, sy, w, h] = s.src;
-        if sx + w > tile.width || sy + h > tile.height {
-            return Err(invalid(
-                path,
-                format!(
-                    "source {name}: <SrcRect> reaches column {} and row {}, the file is {} × {}",
-                    sx + w,
-                    sy + h,
-                    tile.width,
-                    tile.height
-                ),
-            ));
-        }
         let (ratio, off) = s.scale;
         for r in 0..h {
             let row = s.dst[1] + r as i64;
@@ -298,7 +289,7 @@ fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
                 if col < 0 || col >= vrt.width as i64 {
                     continue;
                 }
-                let v = tile.heights[(sy + r) * tile.width + sx + c];
+                let v = tile.heights[r * w + c];
                 if v.is_nan() || s.nodata.is_some_and(|nd| f64::from(v) == nd) {
                     continue;
                 }
