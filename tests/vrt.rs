@@ -172,6 +172,12 @@ fn a_vrt_whose_tiles_do_not_line_up_or_resample_is_refused_naming_the_tile() {
     write_vrt(&missing, (327, 468), &tiles, 1);
     run(&missing, "gone.tif");
 
+    tiles[2].file = "N00E000.hgt".into();
+    std::fs::copy(fixture("hgt_mosaic/N00E000.hgt"), dir.path().join("N00E000.hgt")).unwrap();
+    let not_tiff = dir.path().join("hgt.vrt");
+    write_vrt(&not_tiff, (327, 468), &tiles, 1);
+    run(&not_tiff, "N00E000.hgt is not a GeoTIFF");
+
     let two = dir.path().join("two.vrt");
     write_vrt(&two, (327, 468), &tiles[..2], 2);
     run(&two, "2 bands; a DEM mosaic has one");

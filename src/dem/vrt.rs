@@ -224,6 +224,12 @@ fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
         if !meta.is_file() {
             return Err(unsupported(path, format!("source {}: not a regular file", s.file.display())));
         }
+        if super::sniff_file(&s.file).map_err(|e| within(path, &s.file, e))? != Some(super::Format::Tiff) {
+            return Err(unsupported(
+                path,
+                format!("source {} is not a GeoTIFF; terrachunk reads VRT mosaics of GeoTIFFs", s.file.display()),
+            ));
+        }
         held = held.saturating_add(meta.len());
     }
     super::check_expansion((vrt.width, vrt.height), 4, held).map_err(|e| unsupported(path, e))?;
