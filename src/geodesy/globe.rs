@@ -79,7 +79,7 @@ impl Globe {
         }
         globe.curvature = globe.measure_curvature(width, height, spacing_m);
         if degrees {
-            let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+            let e2 = super::WGS84_E2;
             globe.rows = (0..height)
                 .map(|i| {
                     let (s, c) = (georef.origin[1] + georef.step[1] * i as f64).to_radians().sin_cos();
@@ -112,7 +112,7 @@ impl Globe {
     pub fn world(&self, j: f64, i: f64, h: f64) -> [f64; 3] {
         let p = match self.at_sample(j, i) {
             Some(([sp, cp, n], [sl, cl])) => {
-                let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+                let e2 = super::WGS84_E2;
                 [(n + h) * cp * cl, (n + h) * cp * sl, (n * (1.0 - e2) + h) * sp]
             }
             None => {
@@ -215,7 +215,7 @@ impl Globe {
 /// WGS 84 latitude, longitude (degrees) and ellipsoidal height of an ECEF
 /// point (Bowring's iteration, to well under a micrometre near the Earth).
 pub fn geodetic(p: [f64; 3]) -> (f64, f64, f64) {
-    let e2 = super::WGS84_F * (2.0 - super::WGS84_F);
+    let e2 = super::WGS84_E2;
     let a = super::WGS84_A;
     let lon = p[1].atan2(p[0]);
     let r = p[0].hypot(p[1]);

@@ -48,6 +48,8 @@ use crate::heightfield::{Crs, Georef};
 pub const WGS84_A: f64 = 6_378_137.0;
 /// WGS 84 flattening.
 pub const WGS84_F: f64 = 1.0 / 298.257_223_563;
+/// WGS 84 first eccentricity squared, f·(2 − f).
+const WGS84_E2: f64 = WGS84_F * (2.0 - WGS84_F);
 
 /// The placement of a grid on the WGS 84 ellipsoid (tileset extras).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -499,7 +501,7 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// ECEF metres of a WGS 84 latitude/longitude (degrees) and ellipsoidal height.
 pub fn ecef(lat_deg: f64, lon_deg: f64, h: f64) -> [f64; 3] {
-    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let e2 = WGS84_E2;
     let (sp, cp) = lat_deg.to_radians().sin_cos();
     let (sl, cl) = lon_deg.to_radians().sin_cos();
     let n = WGS84_A / (1.0 - e2 * sp * sp).sqrt();
