@@ -5,10 +5,10 @@
 #
 #   1. The merged tileset is byte-identical to the single-process build and
 #      passes `terrachunk verify`.
-#   2. Again with the greedy TIN, whose debug-build jobs last long enough to
-#      be caught, and one worker killed (SIGKILL) while it runs a job: the
-#      job is frozen first (SIGSTOP) and the kill made only once it is seen
-#      unfinished, so the check does not depend on timing. The scheduler
+#   2. Again with the greedy TIN, and one worker killed (SIGKILL) while it
+#      runs a job: the job is frozen (SIGSTOP) as soon as it is seen and let
+#      run in steps of a few milliseconds until it has begun writing chunks,
+#      so the check does not depend on how long a job lasts. The scheduler
 #      reruns the job elsewhere, the result is still identical, and neither
 #      OUT nor the killed job's folder appears before they are whole.
 #
@@ -107,25 +107,30 @@ stamp "sharded build on 2 workers: byte-identical, verify OK"
 driver=$!
 pids+=($driver)
 victim=""
-for _ in $(seq 600); do
-  # A job that has started writing chunks, and the worker process running it.
+for _ in $(seq 3000); do
   for p in $(pgrep -f -- "--manifest $work/b.shards/manifest.json" || true); do
     # (The job may end between the look-ups: each may find nothing.)
     job="$( (tr '\0' ' ' <"/proc/$p/cmdline") 2>/dev/null | sed -n 's/.*--job \([0-9]*\).*/\1/p' || true)"
-    if [ -n "$job" ] && compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null; then
-      victim="$(ps -o ppid= -p "$p" | tr -d ' ' || true)"
-      # Only ever one of the workers this script started.
-      case "$workers" in *" $victim "*) ;; *) victim=""; continue ;; esac
-      # Frozen, the job can no longer publish: kill only one still unfinished.
-      kill -STOP "$p" 2>/dev/null || { victim=""; continue; }
-      if compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null && [ ! -e "$work/b.shards/job-$job" ]; then
-        break 2
+    [ -n "$job" ] || continue
+    parent="$(ps -o ppid= -p "$p" | tr -d ' ' || true)"
+    # Only ever a job of one of the workers this script started.
+    case "$workers" in *" $parent "*) ;; *) continue ;; esac
+    # Frozen at once, then let run a few milliseconds at a time until it is
+    # seen writing chunks: however fast the job, it is caught unfinished.
+    kill -STOP "$p" 2>/dev/null || continue
+    for _ in $(seq 2000); do
+      [ -e "$work/b.shards/job-$job" ] && break
+      if compgen -G "$work/b.shards/.job-$job.tmp-*/tiles" >/dev/null; then
+        victim="$parent"
+        break 3
       fi
-      kill -CONT "$p" 2>/dev/null || true
-      victim=""
-    fi
+      kill -CONT "$p" 2>/dev/null || break
+      sleep 0.005
+      kill -STOP "$p" 2>/dev/null || break
+    done
+    kill -CONT "$p" 2>/dev/null || true
   done
-  sleep 0.1
+  sleep 0.02
 done
 [ -n "$victim" ] || { echo "cluster: FAIL: no job seen running" >&2; exit 1; }
 # The worker's death takes its job with it (PR_SET_PDEATHSIG in the driver).
