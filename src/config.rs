@@ -45,6 +45,11 @@ pub struct Config {
     pub tau_max_px: f64,
     /// Worker threads; 0 = one per core. Range: 0..=[`MAX_THREADS`]. Default 0.
     pub threads: usize,
+    /// The most memory a build may hold, as a size (`"2GB"`, `"256MB"`,
+    /// `"1.5GiB"`; `"none"`: no limit). Whole-grid arrays larger than an
+    /// eighth of it live in mapped scratch files beside the output
+    /// ([`crate::store`]); the tileset is the same bytes. Default `"2GB"`.
+    pub memory_limit: String,
     /// Multiplier applied to every height (e.g. 0.3048 for feet). Range:
     /// finite, ≠ 0. Default 1.
     pub vertical_scale: f64,
@@ -332,6 +337,7 @@ impl Default for Config {
             max_error_m: 1.0,
             tau_max_px: 2.0,
             threads: 0,
+            memory_limit: "2GB".into(),
             vertical_scale: 1.0,
             spacing_m: None,
             leaf_cells: None,
@@ -354,6 +360,9 @@ impl Default for Config {
         }
     }
 }
+
+/// The smallest `memory_limit`: below it the process itself does not fit.
+pub const MIN_MEMORY_LIMIT: u64 = 16_000_000;
 
 /// A setting that cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -416,6 +425,18 @@ impl Config {
         toml::from_str(&text).map_err(|e| ConfigError::Parse { path: path.into(), message: e.message().to_string() })
     }
 
+    /// `memory_limit` in bytes (`None`: no limit); at least 16 MB.
+    pub fn memory_limit_bytes(&self) -> Result<Option<u64>, &'static str> {
+        if self.memory_limit.trim().eq_ignore_ascii_case("none") {
+            return Ok(None);
+        }
+        match crate::store::parse_bytes(&self.memory_limit) {
+            Ok(b) if b >= MIN_MEMORY_LIMIT => Ok(Some(b)),
+            Ok(_) => Err("must be at least 16MB (or \"none\")"),
+            Err(_) => Err("must be a size such as \"2GB\", \"256MB\" or \"1.5GiB\", or \"none\""),
+        }
+    }
+
     /// Checks every value's range.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |key, value: String, why| Err(ConfigError::Invalid { key, value, why });
@@ -427,6 +448,9 @@ impl Config {
         }
         if !(self.vertical_scale.is_finite() && self.vertical_scale != 0.0) {
             return bad("vertical_scale", self.vertical_scale.to_string(), "must be finite and not 0");
+        }
+        if let Err(why) = self.memory_limit_bytes() {
+            return Err(ConfigError::Invalid { key: "memory_limit", value: self.memory_limit.clone(), why });
         }
         if self.threads > MAX_THREADS {
             return bad("threads", self.threads.to_string(), "must be within 0..=1024 (0: one per core)");

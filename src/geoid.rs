@@ -62,7 +62,8 @@ impl Geoid {
             let [dlon, dlat] = hf.georef.step;
             let [lon0, lat0] = hf.georef.origin;
             let (rows, cols, values) = (hf.height, hf.width, hf.heights);
-            Geoid::checked(Geoid { lat0, lon0, dlat, dlon, rows, cols, values, wraps: false }).map_err(bad)?
+            Geoid::checked(Geoid { lat0, lon0, dlat, dlon, rows, cols, values: values.into_vec(), wraps: false })
+                .map_err(bad)?
         };
         Ok(geoid)
     }

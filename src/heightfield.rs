@@ -7,6 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::store::{Big, Memory};
+
 /// How the grid is placed on the Earth, as far as the source file says.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Georef {
@@ -83,8 +85,9 @@ pub struct Heightfield {
     pub width: usize,
     /// Rows (north → south), at least 2.
     pub height: usize,
-    /// Row-major heights in metres; `NaN` is nodata.
-    pub heights: Vec<f32>,
+    /// Row-major heights in metres; `NaN` is nodata (in memory, or past a
+    /// build's memory limit in a mapped scratch file, [`crate::store`]).
+    pub heights: Big<f32>,
     /// Ground distance between sample centres, metres: `[s_x, s_z]`.
     pub spacing_m: [f64; 2],
     /// Where the grid sits, as the file said.
@@ -110,11 +113,11 @@ pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
 impl Heightfield {
     /// A grid whose file says nothing about where it is: 1 m spacing,
     /// unknown CRS, north-up (overridable with `--spacing`).
-    pub fn ungeoreferenced(width: usize, height: usize, heights: Vec<f32>, source: String) -> Self {
+    pub fn ungeoreferenced(width: usize, height: usize, heights: impl Into<Big<f32>>, source: String) -> Self {
         Heightfield {
             width,
             height,
-            heights,
+            heights: heights.into(),
             spacing_m: [1.0, 1.0],
             georef: Georef {
                 crs: Crs::Unknown,
@@ -165,19 +168,27 @@ impl Heightfield {
 /// vertices forced onto nodata samples (chunk corners, line midpoints) take
 /// these heights; no error is ever measured against them. `None` when the
 /// grid has no voids.
-pub fn void_fill(hf: &Heightfield) -> Option<Vec<f32>> {
+pub fn void_fill(hf: &Heightfield) -> Option<Big<f32>> {
+    void_fill_in(hf, None).expect("in memory")
+}
+
+/// [`void_fill`], its arrays in scratch files where `memory` says so (which
+/// can fail, naming the file).
+pub fn void_fill_in(hf: &Heightfield, memory: Option<&Memory>) -> std::io::Result<Option<Big<f32>>> {
     if !hf.heights.iter().any(|h| h.is_nan()) {
-        return None;
+        return Ok(None);
     }
     // levels[0] = the grid; each next one halves both sizes (rounding up).
-    let mut levels: Vec<(usize, usize, Vec<f32>)> = vec![(hf.width, hf.height, hf.heights.clone())];
+    let mut grid = Big::filled(hf.heights.len(), 0.0, memory)?;
+    grid.copy_from_slice(&hf.heights);
+    let mut levels: Vec<(usize, usize, Big<f32>)> = vec![(hf.width, hf.height, grid)];
     while {
         let (w, h, _) = &levels[levels.len() - 1];
         *w > 1 || *h > 1
     } {
         let (w, h, src) = &levels[levels.len() - 1];
         let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-        let mut dst = vec![f32::NAN; nw * nh];
+        let mut dst = Big::filled(nw * nh, f32::NAN, memory)?;
         for i in 0..nh {
             for j in 0..nw {
                 let (mut sum, mut n) = (0.0f64, 0u32);
@@ -210,6 +221,9 @@ pub fn void_fill(hf: &Heightfield) -> Option<Vec<f32>> {
             }
         }
     }
-    let (_, _, filled) = levels.swap_remove(0);
-    Some(filled.into_iter().map(|v| if v.is_nan() { 0.0 } else { v }).collect())
+    let (_, _, mut filled) = levels.swap_remove(0);
+    for v in filled.iter_mut().filter(|v| v.is_nan()) {
+        *v = 0.0;
+    }
+    Ok(Some(filled))
 }

@@ -6,8 +6,10 @@
 //! a client runs per frame (chunk selection, morph weights); [`verify`]
 //! re-checks a written tileset from its files alone; [`mod@bench`] measures speed
 //! against error, beside other tools; [`shard`] splits one build into
-//! independent jobs for a distributed engine.
-#![forbid(unsafe_code)]
+//! independent jobs for a distributed engine; [`store`] keeps whole-grid
+//! arrays in memory or, past a memory limit, in mapped scratch files (the
+//! one module with `unsafe`, for the mapping).
+#![deny(unsafe_code)]
 #![deny(missing_docs)]
 
 pub mod bench;
@@ -24,6 +26,7 @@ pub mod pipeline;
 mod progress;
 pub mod quadtree;
 pub mod shard;
+pub mod store;
 #[cfg(test)]
 mod test_rng;
 pub mod text;

@@ -102,6 +102,10 @@ struct BuildArgs {
     /// Worker threads (0 = one per core).
     #[arg(long)]
     threads: Option<usize>,
+    /// Most memory the build may hold: 2GB (default), 256MB, 1.5GiB or
+    /// none; larger grids go through scratch files beside OUT, same bytes.
+    #[arg(long)]
+    memory_limit: Option<String>,
     /// Multiply heights by this.
     #[arg(long)]
     vertical_scale: Option<f64>,
@@ -420,6 +424,7 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
         max_error,
         tau_max,
         threads,
+        memory_limit,
         vertical_scale,
         spacing,
         geoid,
@@ -451,6 +456,9 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
     }
     if let Some(v) = threads {
         cfg.threads = v;
+    }
+    if let Some(v) = memory_limit {
+        cfg.memory_limit = v;
     }
     if let Some(v) = vertical_scale {
         cfg.vertical_scale = v;

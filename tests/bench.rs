@@ -29,7 +29,7 @@ fn vertex(x: f64, z: f64, h: f64) -> MeshVertex {
 }
 
 fn grid_of(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
-    let heights = (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).map(|(i, j)| f(i, j)).collect();
+    let heights: Vec<f32> = (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).map(|(i, j)| f(i, j)).collect();
     Heightfield::ungeoreferenced(w, h, heights, "test".into())
 }
 

@@ -9,6 +9,7 @@ mod geoid;
 mod goldens;
 mod hard_cases;
 mod loader_limits;
+mod memory;
 mod output_safety;
 mod pipeline;
 mod placement;

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use terrachunk::dem::{LoadOptions, load};
+use terrachunk::store::Memory;
 
 use crate::common::{all_files, assert_bad_input, build_ok, cli, fixture, verified_against};
 
@@ -111,6 +112,16 @@ fn a_vrt_mosaic_of_tiles_is_the_grid_they_were_cut_from_and_builds_the_same_tile
     assert_eq!(mosaic.georef.origin, whole.georef.origin);
     assert_eq!(mosaic.georef.step, whole.georef.step);
     assert_eq!(mosaic.spacing_m, whole.spacing_m);
+    // Past a memory limit's share, the mosaic and the single file are
+    // decoded straight into scratch files, to the same samples.
+    let memory = Memory::new(1 << 20, dir.path());
+    let opts = LoadOptions { memory: Some(memory.clone()), ..LoadOptions::default() };
+    for path in [vrt.clone(), fixture("mount_st_helens_30m.tif")] {
+        let mapped = load(std::slice::from_ref(&path), &opts).unwrap();
+        assert!(mapped.heights.is_mapped(), "{}", path.display());
+        assert!(bits(&mapped.heights) == bits(&whole.heights), "{}: the same samples", path.display());
+    }
+    assert!(memory.mapped_bytes() >= 2 * 4 * (whole.width * whole.height) as u64);
 
     let (_a, from_tif, _) = build_ok(&fixture("mount_st_helens_30m.tif"), 8.0);
     let (_b, from_vrt, _) = build_ok(&vrt, 8.0);

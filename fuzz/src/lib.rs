@@ -52,7 +52,7 @@ pub fn load_texture_bytes(data: &[u8]) {
     let hf = Heightfield {
         width: 41,
         height: 41,
-        heights: vec![100.0; 41 * 41],
+        heights: vec![100.0; 41 * 41].into(),
         spacing_m: [10.0, 10.0],
         georef: Georef {
             crs: Crs::Projected { epsg: Some(32610) },

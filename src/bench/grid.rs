@@ -32,7 +32,7 @@ pub fn square(hf: &Heightfield, n: usize) -> (Heightfield, SquareChange) {
         }
     }
     let change = SquareChange { columns: hf.width as i64 - n as i64, rows: hf.height as i64 - n as i64 };
-    (Heightfield { width: n, height: n, heights, ..hf.clone() }, change)
+    (Heightfield { width: n, height: n, heights: heights.into(), ..hf.clone() }, change)
 }
 
 /// The centred window holding about `1/fraction` of the samples (each side
@@ -48,7 +48,7 @@ pub fn centred_window(hf: &Heightfield, fraction: u32) -> Heightfield {
     }
     let mut georef = hf.georef.clone();
     georef.origin = [georef.origin[0] + georef.step[0] * x0 as f64, georef.origin[1] + georef.step[1] * z0 as f64];
-    Heightfield { width: w, height: h, heights, georef, ..hf.clone() }
+    Heightfield { width: w, height: h, heights: heights.into(), georef, ..hf.clone() }
 }
 
 /// Writes the grid as an uncompressed float32 GeoTIFF without GeoKeys (NaN =

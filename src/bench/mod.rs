@@ -156,7 +156,7 @@ pub fn load_options(config: Option<&Path>) -> Result<LoadOptions, BenchError> {
         Some(p) => Config::from_file(p)?,
         None => Config::default(),
     };
-    Ok(LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m, geoid: None })
+    Ok(LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m, geoid: None, memory: None })
 }
 
 /// Loads `dem` and cuts it; returns its label (file name, plus the cut) and

@@ -229,7 +229,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let mut hf = Heightfield {
         width: ncols,
         height: nrows,
-        heights,
+        heights: heights.into(),
         spacing_m,
         georef: Georef { crs, origin: [x0, y0], step: [dx, -dy], local_tangent: None, definition },
         source: file_name(path),

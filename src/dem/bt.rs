@@ -141,7 +141,7 @@ pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
     let mut hf = Heightfield {
         width,
         height,
-        heights,
+        heights: heights.into(),
         spacing_m: [dx * unit_m, dy * unit_m],
         georef: Georef { crs: Crs::Unknown, origin, step: [dx, -dy], local_tangent: None, definition: None },
         source: file_name(path),

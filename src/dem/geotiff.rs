@@ -39,6 +39,7 @@ use tiff::tags::Tag;
 use super::{DemError, check_expansion, corrupt, file_name, invalid, io_error, sample_count, to_height, unsupported};
 use crate::geodesy::SourceCrs;
 use crate::heightfield::{Crs, Heightfield};
+use crate::store::{Big, Memory};
 
 /// GeoKey ids (GeoTIFF 1.1, section 7).
 const GT_MODEL_TYPE: u16 = 1024;
@@ -114,7 +115,13 @@ fn open(path: &Path) -> Result<Opened, DemError> {
 
 /// Read a GeoTIFF DEM.
 pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    let (mut hf, raw) = load_unplaced(path)?;
+    load_in(path, None)
+}
+
+/// [`load`], the samples decoded straight into a scratch file where
+/// `memory` says a grid this size goes to one.
+pub(crate) fn load_in(path: &Path, memory: Option<&Memory>) -> Result<Heightfield, DemError> {
+    let (mut hf, raw) = load_unplaced(path, memory)?;
     if let Some(raw) = raw {
         place_grid(&mut hf, raw);
     }
@@ -124,20 +131,20 @@ pub(crate) fn load(path: &Path) -> Result<Heightfield, DemError> {
 /// The samples as the file stores them (rows and columns in file order, a
 /// ungeoreferenced grid) and the georeference its tags give, not applied
 /// yet ([`place_grid`]): what a mosaic of GeoTIFFs assembles from.
-pub(crate) fn load_unplaced(path: &Path) -> Result<(Heightfield, Option<RawGeoref>), DemError> {
-    let Window { heights, size: (width, height), georef, .. } = read_samples(path, None)?;
+fn load_unplaced(path: &Path, memory: Option<&Memory>) -> Result<(Heightfield, Option<RawGeoref>), DemError> {
+    let Window { heights, size: (width, height), georef, .. } = read_samples(path, None, memory)?;
     Ok((Heightfield::ungeoreferenced(width, height, heights, file_name(path)), georef))
 }
 
 /// The samples of `window` (`[column, row, width, height]`, inside the
 /// image) as [`load_unplaced`] reads them, decoding only the strips or
 /// tiles that meet it.
-pub(crate) fn load_window(path: &Path, window: [usize; 4]) -> Result<Window, DemError> {
-    read_samples(path, Some(window))
+pub(crate) fn load_window(path: &Path, window: [usize; 4], memory: Option<&Memory>) -> Result<Window, DemError> {
+    read_samples(path, Some(window), memory)
 }
 
 /// The samples of `window`, or of the whole image.
-fn read_samples(path: &Path, window: Option<[usize; 4]>) -> Result<Window, DemError> {
+fn read_samples(path: &Path, window: Option<[usize; 4]>, memory: Option<&Memory>) -> Result<Window, DemError> {
     let Opened { mut dec, file_len, width, height, fences } = open(path)?;
     let err = |e: TiffError| tiff_error(path, e);
     let window = window.unwrap_or([0, 0, width, height]);
@@ -158,7 +165,7 @@ fn read_samples(path: &Path, window: Option<[usize; 4]>) -> Result<Window, DemEr
         }
         None => None,
     };
-    let mut heights = vec![f32::NAN; n];
+    let mut heights = Big::filled(n, f32::NAN, memory).map_err(|e| super::io_error(path, e))?;
     let whole = window == [0, 0, width, height];
     let mut scratch = Vec::new();
     let (dec, decoded) = read_chunks(
@@ -197,7 +204,7 @@ fn read_samples(path: &Path, window: Option<[usize; 4]>) -> Result<Window, DemEr
 /// What [`load_window`] read.
 pub(crate) struct Window {
     /// Row-major samples of the window, NaN = nodata.
-    pub heights: Vec<f32>,
+    pub heights: Big<f32>,
     /// The whole image: columns, rows.
     pub size: (usize, usize),
     /// The file's georeference, as stored.
@@ -800,10 +807,10 @@ mod tests {
     fn a_window_is_the_whole_files_samples_there_from_its_chunks_alone() {
         for name in ["dfw_texas_srtm3.tif", "california_crop_deflate.tif", "mount_st_helens_30m.tif"] {
             let path = fixture(name);
-            let all = read_samples(&path, None).unwrap();
+            let all = read_samples(&path, None, None).unwrap();
             let (w, h) = all.size;
             for window in [[0, 0, w, h], [1, 2, 3, 4], [w / 3, h / 2, w / 2, h / 3], [w - 1, h - 1, 1, 1]] {
-                let part = load_window(&path, window).unwrap();
+                let part = load_window(&path, window, None).unwrap();
                 let [x0, y0, ww, wh] = window;
                 for r in 0..wh {
                     for c in 0..ww {
@@ -813,9 +820,9 @@ mod tests {
                 }
                 assert!(part.decoded <= all.decoded, "{name}");
             }
-            let small = load_window(&path, [w / 2, h / 2, 2, 2]).unwrap();
+            let small = load_window(&path, [w / 2, h / 2, 2, 2], None).unwrap();
             assert!(small.decoded < all.decoded || all.decoded == 1, "{name}: {} of {}", small.decoded, all.decoded);
-            assert!(load_window(&path, [w - 1, 0, 2, 1]).is_err(), "{name}: a window past the image");
+            assert!(load_window(&path, [w - 1, 0, 2, 1], None).is_err(), "{name}: a window past the image");
         }
     }
 }

@@ -238,7 +238,7 @@ fn mosaic(tiles: Vec<Tile>, source: String) -> Result<Heightfield, DemError> {
     let mut hf = Heightfield {
         width,
         height,
-        heights,
+        heights: heights.into(),
         spacing_m: [1.0, 1.0],
         georef: Georef {
             crs: Crs::Geographic { epsg: Some(4326) },

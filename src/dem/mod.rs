@@ -37,6 +37,7 @@ mod hgt;
 mod prj;
 mod vrt;
 
+use crate::store::{Big, Memory};
 pub(crate) use hgt::is_hgt;
 mod png;
 
@@ -53,6 +54,10 @@ pub struct LoadOptions {
     /// A geoid model (`.gtx` or geographic GeoTIFF) whose undulation is
     /// added to every height, making them ellipsoidal (`crate::geoid`).
     pub geoid: Option<PathBuf>,
+    /// A memory limit: GeoTIFF and VRT grids past its share are decoded
+    /// straight into a mapped scratch file ([`crate::store`]), any other
+    /// format is read whole and then moved into one.
+    pub memory: Option<Memory>,
 }
 
 /// What can go wrong while loading a DEM. Every variant names the file.
@@ -375,13 +380,13 @@ fn load_one(path: &Path, opts: &LoadOptions) -> Result<Heightfield, DemError> {
         }
     };
     match format {
-        Format::Tiff => geotiff::load(path),
+        Format::Tiff => geotiff::load_in(path, opts.memory.as_ref()),
         Format::Png => png::load(path),
         Format::Hgt => hgt::load_single(path, opts.spacing_m.is_some()),
         Format::Asc => asc::load(path),
         Format::Bt => bt::load(path),
         Format::Exr => self::exr::load(path),
-        Format::Vrt => vrt::load(path),
+        Format::Vrt => vrt::load(path, opts.memory.as_ref()),
     }
 }
 
@@ -401,6 +406,10 @@ fn finish(path: &Path, mut hf: Heightfield, opts: &LoadOptions) -> Result<Height
         hf.spacing_m = spacing;
     }
     validate(path, &hf)?;
+    if !hf.heights.is_mapped() && opts.memory.is_some() {
+        let heights = std::mem::take(&mut hf.heights);
+        hf.heights = Big::from_vec_in(heights.into_vec(), opts.memory.as_ref()).map_err(|e| io_error(path, e))?;
+    }
     Ok(hf)
 }
 

@@ -24,14 +24,15 @@ use std::path::{Path, PathBuf};
 use super::geotiff::{self, RawGeoref};
 use super::{DemError, corrupt, invalid, io_error, sample_count, unsupported};
 use crate::heightfield::Heightfield;
+use crate::store::{Big, Memory};
 
 /// The largest VRT file read (its XML), bytes: a mosaic of a hundred
 /// thousand tiles stays far below it.
 const MAX_VRT_BYTES: u64 = 64 << 20;
 
 /// Reads the mosaic a `.vrt` describes.
-pub(super) fn load(path: &Path) -> Result<Heightfield, DemError> {
-    assemble(path, &read(path)?)
+pub(super) fn load(path: &Path, memory: Option<&Memory>) -> Result<Heightfield, DemError> {
+    assemble(path, &read(path)?, memory)
 }
 
 /// The files the mosaic reads, in its order.
@@ -211,7 +212,7 @@ fn parse(path: &Path, text: &str) -> Result<Vrt, DemError> {
 }
 
 /// Reads every source in turn and draws it into the mosaic.
-fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
+fn assemble(path: &Path, vrt: &Vrt, memory: Option<&Memory>) -> Result<Heightfield, DemError> {
     let n = sample_count(path, vrt.width, vrt.height)?;
     if vrt.width < 2 || vrt.height < 2 {
         return Err(invalid(path, format!("grid is {} × {} samples; need at least 2 × 2", vrt.width, vrt.height)));
@@ -238,12 +239,12 @@ fn assemble(path: &Path, vrt: &Vrt) -> Result<Heightfield, DemError> {
     // Sample centres, as a GeoTIFF's georeference gives them.
     let origin = [cx + dx / 2.0, cy + dy / 2.0];
     let fill = if vrt.nodata.is_some() { f32::NAN } else { vrt.unit.0 as f32 };
-    let mut heights = vec![fill; n];
+    let mut heights = Big::filled(n, fill, memory).map_err(|e| super::io_error(path, e))?;
     let mut placed: Option<RawGeoref> = None;
     for s in &vrt.sources {
         let [sx, sy, w, h] = s.src;
         // Only the strips or tiles under SrcRect are decoded.
-        let tile = geotiff::load_window(&s.file, s.src).map_err(|e| within(path, &s.file, e))?;
+        let tile = geotiff::load_window(&s.file, s.src, memory).map_err(|e| within(path, &s.file, e))?;
         let raw = tile.georef;
         let name = s.file.display();
         let Some(raw) = raw else {

@@ -41,6 +41,7 @@ use super::grid::Grid;
 use super::{ChunkMesh, MeshError, MeshVertex};
 use crate::geodesy::Globe;
 use crate::quadtree::{ChunkKey, ChunkTree, Span};
+use crate::store::{self, Big, Memory};
 
 /// Plans the chunk tree the bintree needs: every chunk of a level is a
 /// square of 2^k cells aligned to 2^k (clipped to the grid), and each level
@@ -234,7 +235,7 @@ pub struct Rtin {
     /// Per sample (row-major): the largest true error of the triangles split
     /// there and of everything below them, in metres, rounded up to f32 (or
     /// a bound on the same rung).
-    errors: Vec<f32>,
+    errors: Big<f32>,
     /// The side of the top squares the pass went up to.
     top: u32,
     /// The smallest δ (every level's is it times a power of two).
@@ -256,14 +257,34 @@ impl Rtin {
     /// its chord may sag ([`Sag`]); held in the field, it grows with the
     /// triangles as the errors do, so the meshes still conform and nest.
     pub fn new(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, sag: Option<Sag>) -> Self {
-        Self::with_scans(grid, tree, height_step, sag, false)
+        Self::with_scans(grid, tree, height_step, sag, false, None).expect("in memory")
     }
 
-    /// [`Rtin::new`], scanning every triangle when `exact` (else only those
-    /// whose bounds straddle a δ).
-    fn with_scans(grid: &Grid, tree: &ChunkTree, height_step: Option<f64>, sag: Option<Sag>, exact: bool) -> Self {
+    /// [`Rtin::new`], the field in a scratch file where `memory` says an
+    /// array of its size goes to one (which can fail, naming the file).
+    pub fn new_in(
+        grid: &Grid,
+        tree: &ChunkTree,
+        height_step: Option<f64>,
+        sag: Option<Sag>,
+        memory: Option<&Memory>,
+    ) -> std::io::Result<Self> {
+        Self::with_scans(grid, tree, height_step, sag, false, memory)
+    }
+
+    /// [`Rtin::new_in`], scanning every triangle when `exact` (else only
+    /// those whose bounds straddle a δ).
+    fn with_scans(
+        grid: &Grid,
+        tree: &ChunkTree,
+        height_step: Option<f64>,
+        sag: Option<Sag>,
+        exact: bool,
+        memory: Option<&Memory>,
+    ) -> std::io::Result<Self> {
         let top = square_side(tree, 0);
         let ladder = *tree.delta_m.last().expect("a tree has a level");
+        let mut errors = Big::filled(grid.width * grid.height, 0.0f32, memory)?;
         let field = Field {
             grid,
             xmax: (grid.width - 1) as u32,
@@ -272,7 +293,7 @@ impl Rtin {
             ladder,
             exact,
             sag,
-            errors: (0..grid.width * grid.height).map(|_| AtomicU32::new(0)).collect(),
+            errors: store::as_atomic(&mut errors),
         };
         let mut c = 2;
         while c <= top {
@@ -280,8 +301,7 @@ impl Rtin {
             field.level(c, true);
             c *= 2;
         }
-        let errors = field.errors.into_iter().map(|e| f32::from_bits(e.into_inner())).collect();
-        Rtin {
+        Ok(Rtin {
             width: grid.width,
             height: grid.height,
             errors,
@@ -290,7 +310,7 @@ impl Rtin {
             step: height_step,
             sag,
             densest: Mutex::default(),
-        }
+        })
     }
 
     /// Whether this field meshes `tree`'s chunks with heights rounded to
@@ -627,7 +647,7 @@ struct Field<'g> {
     sag: Option<Sag>,
     /// f32 bits; each level writes only its own vertices and reads those of
     /// the level below, so relaxed loads and stores suffice.
-    errors: Vec<AtomicU32>,
+    errors: &'g [AtomicU32],
 }
 
 impl Field<'_> {
@@ -1061,7 +1081,7 @@ mod tests {
         assert_eq!(m.max_error_m, 3.0);
         // The vertex it would take carries the true error (or a bound on
         // the same side of δ), not the midpoint's.
-        assert_eq!(Rtin::with_scans(&grid, &tree, None, None, true).error_at(2, 2), 3.0);
+        assert_eq!(Rtin::with_scans(&grid, &tree, None, None, true, None).unwrap().error_at(2, 2), 3.0);
         assert!((3.0..=4.0).contains(&rtin.error_at(2, 2)), "{}", rtin.error_at(2, 2));
     }
 
@@ -1182,7 +1202,7 @@ mod tests {
         fn bounded_errors_split_where_true_errors_do((w, h, heights, err, leaf) in heights_strategy(), step in prop_oneof![Just(None), Just(Some(0.01)), Just(Some(0.37))]) {
             let grid = Grid::new(w, h, &heights, None);
             let tree = plan(w, h, err, None, leaf, 0);
-            let (bounded, exact) = (Rtin::with_scans(&grid, &tree, step, None, false), Rtin::with_scans(&grid, &tree, step, None, true));
+            let (bounded, exact) = (Rtin::with_scans(&grid, &tree, step, None, false, None).unwrap(), Rtin::with_scans(&grid, &tree, step, None, true, None).unwrap());
             for (k, (b, e)) in bounded.errors.iter().zip(&exact.errors).enumerate() {
                 prop_assert!(b >= e, "sample {}: bound {} below the true {}", k, b, e);
                 prop_assert_eq!(rung(*b, err), rung(*e, err), "sample {}: {} against {}", k, b, e);

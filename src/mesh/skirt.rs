@@ -16,7 +16,8 @@ use crate::chunk::Part;
 use crate::mesh::grid::Grid;
 use crate::quadtree::Span;
 
-/// Builds the skirt of a chunk from its finished surface part.
+/// Builds the skirt of a chunk from its finished surface part, and for each
+/// skirt vertex the surface vertex it hangs from ([`Hang`]).
 ///
 /// `grid_xz[v]` are the surface vertices' grid coordinates, `parent_h[v]`
 /// their heights on the parent surface; `margin_m` is δ(max(L−2, 0)).
@@ -27,7 +28,7 @@ pub fn build_skirt(
     grid_xz: &[(f64, f64)],
     parent_h: &[f64],
     margin_m: f64,
-) -> Part {
+) -> (Part, Vec<Hang>) {
     let ((x0, x1), (z0, z1)) = footprint;
     // The drawn edges along the borders (both ends on the same border line).
     let on_border = |a: u32, b: u32| {
@@ -45,6 +46,7 @@ pub fn build_skirt(
         .collect();
     edge_set.sort_unstable();
     let mut out = Part::default();
+    let mut tops = Vec::new();
     // (vertical?, fixed coordinate, outward direction sign)
     let sides = [(false, z0, -1.0), (false, z1, 1.0), (true, x0, -1.0), (true, x1, 1.0)];
     for (vertical, coord, _sign) in sides {
@@ -93,6 +95,7 @@ pub fn build_skirt(
             out.positions.push([p[0], bottoms[k], p[2]]);
             out.normals.push(n);
             out.morph_dy.push(0.0);
+            tops.extend([Hang { surface: v, top: true }, Hang { surface: v, top: false }]);
         }
         for k in 0..on.len() - 1 {
             let (a, b) = (on[k].1, on[k + 1].1);
@@ -105,11 +108,22 @@ pub fn build_skirt(
         }
     }
     // Drop vertices no triangle uses (border stretches over nodata).
-    compact(out)
+    compact(out, tops)
 }
 
-/// Removes vertices no triangle references, keeping order.
-pub fn compact(mut p: Part) -> Part {
+/// Where a skirt vertex hangs from: its surface vertex, as the top (at the
+/// same place) or as the bottom below it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hang {
+    /// Index of the surface vertex.
+    pub surface: u32,
+    /// The top (the surface vertex's place), else the bottom.
+    pub top: bool,
+}
+
+/// Removes vertices no triangle references, keeping order (and the same
+/// entries of `tops`).
+fn compact(mut p: Part, tops: Vec<Hang>) -> (Part, Vec<Hang>) {
     let mut remap = vec![u32::MAX; p.positions.len()];
     let mut n = 0u32;
     for &i in &p.indices {
@@ -118,13 +132,15 @@ pub fn compact(mut p: Part) -> Part {
         }
     }
     let mut out = Part::default();
+    let mut kept_tops = Vec::new();
     for (k, r) in remap.iter_mut().enumerate() {
         if *r != u32::MAX {
             *r = n;
             n += 1;
             out.push_from(&p, k);
+            kept_tops.push(tops[k]);
         }
     }
     out.indices = p.indices.drain(..).map(|i| remap[i as usize]).collect();
-    out
+    (out, kept_tops)
 }

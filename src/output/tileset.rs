@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
-use serde_json::{Value, json};
+use serde_json::json;
 
 use crate::geodesy::Placement;
 use crate::heightfield::Georef;
@@ -192,77 +192,143 @@ pub fn tiles_box(min: [f64; 3], max: [f64; 3]) -> [f64; 12] {
     [c[0], -c[2], c[1], h[0], 0.0, 0.0, 0.0, h[2], 0.0, 0.0, 0.0, h[1]]
 }
 
-/// Builds the `tileset.json` document. `records` must be sorted by key.
-pub fn tileset_json(tree: &ChunkTree, records: &[TileRecord], extras: &TilesetExtras) -> Value {
-    let find = |k: ChunkKey| records.binary_search_by(|r| r.key.cmp(&k)).ok().map(|i| &records[i]);
-    fn tile<'r>(
-        tree: &ChunkTree,
-        r: &'r TileRecord,
-        find: &dyn Fn(ChunkKey) -> Option<&'r TileRecord>,
-    ) -> (Value, [f64; 3], [f64; 3]) {
-        let (mut lo, mut hi) = (r.min, r.max);
-        let mut children = Vec::new();
-        for c in tree.children(r.key) {
-            if let Some(cr) = find(c) {
-                let (v, clo, chi) = tile(tree, cr, find);
-                for a in 0..3 {
-                    lo[a] = lo[a].min(clo[a]);
-                    hi[a] = hi[a].max(chi[a]);
-                }
-                children.push(v);
-            }
-        }
-        let extras = TileExtras { level: r.key.level, x: r.key.x, y: r.key.y, delta_m: r.delta_m };
-        let mut v = json!({
-            "boundingVolume": {"box": tiles_box(lo, hi)},
-            "geometricError": r.delta_m,
-            "refine": "REPLACE",
-            "content": {"uri": tile_uri(r.key)},
-            "extras": {"terrachunk": extras},
-        });
-        if !children.is_empty() {
-            v["children"] = Value::Array(children);
-        }
-        (v, lo, hi)
-    }
-    let tops: Vec<(Value, [f64; 3], [f64; 3])> =
-        tree.roots().into_iter().filter_map(find).map(|r| tile(tree, r, &find)).collect();
-    // The error of drawing nothing at all is the whole terrain, not a level's
-    // δ: 3D Tiles clients skip a tileset (or stop at a content-less tile)
-    // whose error is below their bound on screen, so a terrain tileset
-    // claiming 4·δ(0) vanished a few kilometres away in CesiumJS. The box's
-    // diagonal keeps it drawn until the whole tileset is smaller than the
-    // bound in pixels.
-    let (lo, hi) = tops.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), (_, l, h)| {
+/// The `tileset.json` document over `records` (sorted by key), to
+/// serialize. It is written as it is walked, never held as a JSON tree: a
+/// tree of 45 000 tiles took 250 MB, more than the grid itself. Keys come
+/// in sorted order, as a `serde_json::Value` holds them.
+pub fn tileset_json<'a>(tree: &'a ChunkTree, records: &'a [TileRecord], extras: &'a TilesetExtras) -> TilesetDoc<'a> {
+    // Each tile's box holds its children's: bottom-up over the records,
+    // deepest level first.
+    let mut boxes: Vec<([f64; 3], [f64; 3])> = records.iter().map(|r| (r.min, r.max)).collect();
+    let mut order: Vec<usize> = (0..records.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(records[i].key.level));
+    for i in order {
+        let Some(p) = tree.parent(records[i].key).and_then(|k| find(records, k)) else { continue };
+        let (lo, hi) = boxes[i];
         for a in 0..3 {
-            lo[a] = lo[a].min(l[a]);
-            hi[a] = hi[a].max(h[a]);
+            boxes[p].0[a] = boxes[p].0[a].min(lo[a]);
+            boxes[p].1[a] = boxes[p].1[a].max(hi[a]);
         }
-        (lo, hi)
-    });
-    let whole = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
-    let root = if tops.len() == 1 {
-        tops.into_iter().next().expect("one top").0
-    } else {
-        // A non-square grid: a content-less root over its near-square cells
-        // (it must always refine into them: see `whole`).
-        json!({
-            "boundingVolume": {"box": tiles_box(lo, hi)},
-            "geometricError": whole.max(2.0 * tree.delta_m[0]),
-            "refine": "REPLACE",
-            "children": tops.into_iter().map(|t| t.0).collect::<Vec<_>>(),
-        })
-    };
-    let mut root = root;
-    if let Some(p) = &extras.placement {
-        root["transform"] = json!(p.transform());
     }
-    json!({
-        "asset": {"version": "1.1", "generator": extras.generator},
-        "geometricError": whole.max(4.0 * tree.delta_m[0]),
-        "root": root,
-        "extras": {"terrachunk": extras},
-    })
+    let tops: Vec<usize> = tree.roots().into_iter().filter_map(|k| find(records, k)).collect();
+    TilesetDoc { tree, records, extras, boxes, tops }
+}
+
+fn find(records: &[TileRecord], k: ChunkKey) -> Option<usize> {
+    records.binary_search_by(|r| r.key.cmp(&k)).ok()
+}
+
+/// [`tileset_json`]'s document.
+pub struct TilesetDoc<'a> {
+    tree: &'a ChunkTree,
+    records: &'a [TileRecord],
+    extras: &'a TilesetExtras,
+    /// Per record, its box with all its descendants'.
+    boxes: Vec<([f64; 3], [f64; 3])>,
+    /// The records of the top-level chunks.
+    tops: Vec<usize>,
+}
+
+impl TilesetDoc<'_> {
+    /// The box over every top-level chunk.
+    fn whole_box(&self) -> ([f64; 3], [f64; 3]) {
+        self.tops.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), &t| {
+            let (l, h) = self.boxes[t];
+            for a in 0..3 {
+                lo[a] = lo[a].min(l[a]);
+                hi[a] = hi[a].max(h[a]);
+            }
+            (lo, hi)
+        })
+    }
+
+    fn children(&self, i: usize) -> Vec<usize> {
+        self.tree.children(self.records[i].key).into_iter().filter_map(|c| find(self.records, c)).collect()
+    }
+}
+
+impl Serialize for TilesetDoc<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let (lo, hi) = self.whole_box();
+        let whole = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+        let mut m = s.serialize_map(Some(4))?;
+        m.serialize_entry("asset", &json!({"version": "1.1", "generator": self.extras.generator}))?;
+        m.serialize_entry("extras", &json!({"terrachunk": self.extras}))?;
+        m.serialize_entry("geometricError", &whole.max(4.0 * self.tree.delta_m[0]))?;
+        let transform = self.extras.placement.as_ref().map(Placement::transform);
+        // The error of drawing nothing at all is the whole terrain, not a level's
+        // δ: 3D Tiles clients skip a tileset (or stop at a content-less tile)
+        // whose error is below their bound on screen, so a terrain tileset
+        // claiming 4·δ(0) vanished a few kilometres away in CesiumJS. The box's
+        // diagonal keeps it drawn until the whole tileset is smaller than the
+        // bound in pixels.
+        match self.tops[..] {
+            [top] => m.serialize_entry("root", &Tile { doc: self, i: top, transform })?,
+            _ => m.serialize_entry(
+                "root",
+                &Group { doc: self, lo, hi, error: whole.max(2.0 * self.tree.delta_m[0]), transform },
+            )?,
+        }
+        m.end()
+    }
+}
+
+/// One tile and, nested, its descendants.
+struct Tile<'d, 'a> {
+    doc: &'d TilesetDoc<'a>,
+    i: usize,
+    transform: Option<[f64; 16]>,
+}
+
+impl Serialize for Tile<'_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let r = &self.doc.records[self.i];
+        let (lo, hi) = self.doc.boxes[self.i];
+        let children = self.doc.children(self.i);
+        let mut m = s.serialize_map(None)?;
+        m.serialize_entry("boundingVolume", &json!({"box": tiles_box(lo, hi)}))?;
+        if !children.is_empty() {
+            let kids: Vec<Tile> = children.into_iter().map(|i| Tile { doc: self.doc, i, transform: None }).collect();
+            m.serialize_entry("children", &kids)?;
+        }
+        m.serialize_entry("content", &json!({"uri": tile_uri(r.key)}))?;
+        let extras = TileExtras { level: r.key.level, x: r.key.x, y: r.key.y, delta_m: r.delta_m };
+        m.serialize_entry("extras", &json!({"terrachunk": extras}))?;
+        m.serialize_entry("geometricError", &r.delta_m)?;
+        m.serialize_entry("refine", "REPLACE")?;
+        if let Some(t) = &self.transform {
+            m.serialize_entry("transform", t)?;
+        }
+        m.end()
+    }
+}
+
+/// A non-square grid's root: content-less over its near-square cells (it
+/// must always refine into them: see `whole` above).
+struct Group<'d, 'a> {
+    doc: &'d TilesetDoc<'a>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    error: f64,
+    transform: Option<[f64; 16]>,
+}
+
+impl Serialize for Group<'_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(None)?;
+        m.serialize_entry("boundingVolume", &json!({"box": tiles_box(self.lo, self.hi)}))?;
+        let tops: Vec<Tile> = self.doc.tops.iter().map(|&i| Tile { doc: self.doc, i, transform: None }).collect();
+        m.serialize_entry("children", &tops)?;
+        m.serialize_entry("geometricError", &self.error)?;
+        m.serialize_entry("refine", "REPLACE")?;
+        if let Some(t) = &self.transform {
+            m.serialize_entry("transform", t)?;
+        }
+        m.end()
+    }
 }
 
 /// The JSON Schemas of the extras, as `(file name, pretty JSON)`.

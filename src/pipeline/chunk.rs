@@ -9,13 +9,12 @@ use std::time::Instant;
 
 use super::BuildError;
 use super::schedule::{BuiltChunk, LevelFigures, Meshed, Run, TileFigures, Timers, few_chunks};
-use std::collections::HashMap;
 
 use crate::chunk::{Chunk, Part};
 use crate::geodesy::Globe;
 use crate::mesh::decimate::{ChunkSpec, DividingLines, build_chunk};
 use crate::mesh::grid::Grid;
-use crate::mesh::skirt::build_skirt;
+use crate::mesh::skirt::{Hang, build_skirt};
 use crate::mesh::{ChunkMesh, MeshVertex, dem_normal};
 use crate::output::gltf::encode_glb;
 use crate::output::tileset::{TileRecord, tile_uri};
@@ -157,7 +156,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
     let parent_h: Vec<f64> = used.iter().map(|v| v.ph).collect();
     surface.morph_dy = used.iter().zip(&parent_h).map(|(v, p)| p - v.h).collect();
     let grid_xz: Vec<(f64, f64)> = used.iter().map(|v| (v.x, v.z)).collect();
-    let skirt = build_skirt(grid, mesh.footprint, &surface, &grid_xz, &parent_h, margin_m);
+    let (skirt, hangs) = build_skirt(grid, mesh.footprint, &surface, &grid_xz, &parent_h, margin_m);
     let mut chunk = Chunk {
         key: mesh.key,
         footprint: mesh.footprint,
@@ -168,7 +167,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
         skirt,
     };
     if let Some(globe) = globe {
-        bend(&mut chunk, &targets, globe, spacing);
+        bend(&mut chunk, &targets, &hangs, globe, spacing);
     }
     chunk
 }
@@ -178,19 +177,12 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
 /// turned from the grid's axes to the local ones there, and its morph
 /// delta to the parent's written surface (`targets`, per surface vertex:
 /// `ChunkMesh::parent_points`, which the bintree carries down its edges).
-/// Skirt tops keep their surface vertex's delta and bottoms 0, as in the
-/// flat frame; a bottom hangs along the normal.
-fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], globe: &Globe, spacing: [f64; 2]) {
-    let key = |p: &[f64; 3]| p.map(f64::to_bits);
+/// Skirt tops (`hangs`: the surface vertex each skirt vertex hangs from, as
+/// [`build_skirt`] gives them) take their surface vertex's place, normal
+/// and delta, bottoms its normal and delta 0, as in the flat frame; a
+/// bottom hangs along the normal.
+fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], hangs: &[Hang], globe: &Globe, spacing: [f64; 2]) {
     let surface = &mut chunk.surface;
-    // Skirts hang from the border: only border vertices can be their tops.
-    let ((x0, x1), (z0, z1)) = chunk.footprint;
-    let on_border =
-        |(j, i): (f64, f64)| j == f64::from(x0) || j == f64::from(x1) || i == f64::from(z0) || i == f64::from(z1);
-    let tops: HashMap<[u64; 3], usize> = (0..surface.positions.len())
-        .filter(|&k| on_border(chunk.surface_grid[k]))
-        .map(|k| (key(&surface.positions[k]), k))
-        .collect();
     let turn = |n: [f32; 3], axes: [[f64; 3]; 3]| -> [f32; 3] {
         let v = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
         let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
@@ -207,15 +199,15 @@ fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], globe: &Globe, spacing: [f64; 2
     surface.morph_dy = deltas.iter().map(|d| d[1]).collect();
     surface.morph_dxz = deltas.iter().map(|d| [d[0], d[2]]).collect();
     let skirt = &mut chunk.skirt;
-    for k in 0..skirt.positions.len() {
-        let flat = skirt.positions[k];
-        let (j, i) = (flat[0] / spacing[0], flat[2] / spacing[1]);
-        // Bintree vertices are samples: whole grid indices.
-        let (j, i) = (j.round(), i.round());
-        skirt.positions[k] = globe.world(j, i, flat[1]);
-        skirt.normals[k] = turn(skirt.normals[k], globe.axes(j, i));
-        skirt.plan_m.push([j * spacing[0], i * spacing[1]]);
-        let d = tops.get(&key(&flat)).map_or([0.0; 3], |&t| deltas[t]);
+    for (k, &Hang { surface: s, top }) in hangs.iter().enumerate() {
+        let s = s as usize;
+        // The same grid point and normal as its surface vertex: the same
+        // results, without working them out again.
+        let (j, i) = chunk.surface_grid[s];
+        skirt.positions[k] = if top { surface.positions[s] } else { globe.world(j, i, skirt.positions[k][1]) };
+        skirt.normals[k] = surface.normals[s];
+        skirt.plan_m.push(surface.plan_m[s]);
+        let d = if top { deltas[s] } else { [0.0; 3] };
         skirt.morph_dy[k] = d[1];
         skirt.morph_dxz.push([d[0], d[2]]);
     }

@@ -22,7 +22,7 @@ use std::time::Instant;
 use crate::config::{Compress, Config, ConfigError, FLAT_FRAME_SHARE, Frame, Mesher};
 use crate::dem::{self, DemError, LoadOptions};
 use crate::geodesy::{FrameKind, Globe, Placement};
-use crate::heightfield::{Crs, Heightfield, void_fill};
+use crate::heightfield::{Crs, Heightfield, void_fill_in};
 use crate::mesh::MeshError;
 use crate::mesh::grid::Grid;
 use crate::output::compress::QuantizeError;
@@ -30,7 +30,8 @@ use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtra
 use crate::quadtree::ChunkTree;
 use crate::quadtree::estimate::{Planned, plan_tree};
 use crate::shard::{FixedPlan, PartBuilt, TreePart};
-use crate::texture::source::{generate, generated_to_px, load_image};
+use crate::store::Memory;
+use crate::texture::source::{generate_in, generated_to_px, load_image};
 use crate::texture::{TextureError, TextureSource};
 
 pub use chunk::assemble;
@@ -57,10 +58,27 @@ pub struct BuildOptions {
     pub geoid: Option<PathBuf>,
 }
 
-/// How [`dem::load`] reads the inputs of `opts`.
-fn load_options(opts: &BuildOptions) -> LoadOptions {
+/// How [`dem::load`] reads the inputs of `opts`, grids past `memory`'s
+/// share into scratch files.
+fn load_options(opts: &BuildOptions, memory: Option<&Memory>) -> LoadOptions {
     let cfg = &opts.config;
-    LoadOptions { vertical_scale: Some(cfg.vertical_scale), spacing_m: cfg.spacing_m, geoid: opts.geoid.clone() }
+    LoadOptions {
+        vertical_scale: Some(cfg.vertical_scale),
+        spacing_m: cfg.spacing_m,
+        geoid: opts.geoid.clone(),
+        memory: memory.cloned(),
+    }
+}
+
+/// The build's memory limit, with scratch files in `dir` (the temporary
+/// folder beside OUT, or a job's own).
+fn memory(cfg: &Config, dir: &Path) -> Option<Memory> {
+    cfg.memory_limit_bytes().ok().flatten().map(|limit| Memory::new(limit, dir))
+}
+
+/// Where a build's scratch files failed (the message names the file).
+fn scratch_error(dir: &Path, source: std::io::Error) -> BuildError {
+    BuildError::Io { path: dir.to_path_buf(), source }
 }
 
 /// Why a build failed.
@@ -194,13 +212,14 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         reads.push(image);
     }
     let out = OutDir::claim(&opts.out, &reads, opts.force)?;
-    let hf = dem::load(&opts.inputs, &load_options(opts))?;
+    let memory = memory(cfg, out.tmp());
+    let hf = dem::load(&opts.inputs, &load_options(opts, memory.as_ref()))?;
     check_extent(&hf, opts)?;
     let t_load = t0.elapsed();
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
     let pool = thread_pool(threads)?;
 
-    let built = pool.install(|| schedule::build_into(&hf, opts, out.tmp()))?;
+    let built = pool.install(|| schedule::build_into(&hf, opts, out.tmp(), memory.as_ref()))?;
     let (mut report, tree, records, texture, [t_plan, t_source, t_chunks]) = built;
     let t_idx = Instant::now();
     let mut extras = tileset_extras(&hf, opts, &tree);
@@ -229,6 +248,8 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         total: t0.elapsed().as_secs_f64(),
     };
     report.peak_rss_bytes = peak_rss();
+    report.memory_limit_bytes = memory.as_ref().map(Memory::limit);
+    report.scratch_bytes = memory.as_ref().map_or(0, Memory::mapped_bytes);
     Ok(report)
 }
 
@@ -372,9 +393,13 @@ fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, BuildError> {
 pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
     opts.config.validate()?;
     let cfg = &opts.config;
-    let hf = dem::load(&opts.inputs, &load_options(opts))?;
+    // Scratch files beside OUT (they are unlinked at once).
+    let scratch = opts.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let memory = memory(cfg, scratch);
+    let memory = memory.as_ref();
+    let hf = dem::load(&opts.inputs, &load_options(opts, memory))?;
     check_extent(&hf, opts)?;
-    let filled = void_fill(&hf);
+    let filled = void_fill_in(&hf, memory).map_err(|e| scratch_error(scratch, e))?;
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let to_px = match &opts.texture {
         TextureSource::None => None,
@@ -383,7 +408,8 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
     };
     let Planned { mut estimate, leaf_cells, mut refine } = plan_tree(&hf, &grid, cfg, to_px);
     if cfg.mesher == crate::config::Mesher::Rtin {
-        refine = schedule::counted_refine(&hf, &grid, cfg, leaf_cells, 0, &mut None);
+        refine = schedule::counted_refine(&hf, &grid, cfg, leaf_cells, 0, &mut None, memory)
+            .map_err(|e| scratch_error(scratch, e))?;
     }
     let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
     let lone_parts = schedule::lone_parts(&tree, &mut estimate);
@@ -397,26 +423,32 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
 pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &Path) -> Result<PartBuilt, BuildError> {
     opts.config.validate()?;
     let cfg = &opts.config;
-    let hf = dem::load(&opts.inputs, &load_options(opts))?;
+    // Scratch files beside the job's folder (they are unlinked at once).
+    let scratch = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let memory = memory(cfg, scratch);
+    let memory = memory.as_ref();
+    let hf = dem::load(&opts.inputs, &load_options(opts, memory))?;
     check_extent(&hf, opts)?;
     let threads = if cfg.threads == 0 { rayon::current_num_threads() } else { cfg.threads };
     let pool = thread_pool(threads)?;
     pool.install(|| {
-        let filled = void_fill(&hf);
+        let filled = void_fill_in(&hf, memory).map_err(|e| scratch_error(scratch, e))?;
         let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
         let colour = match &opts.texture {
             TextureSource::None => None,
             TextureSource::Image(path) => Some(load_image(path, &hf)?),
-            TextureSource::Generated => Some(generate(&hf, filled.as_deref(), cfg)?),
+            TextureSource::Generated => Some(generate_in(&hf, filled.as_deref(), cfg, memory)?),
         };
         let tree = plan.tree(cfg);
         std::fs::create_dir_all(dir).map_err(|source| BuildError::Io { path: dir.into(), source })?;
         let target = schedule::Target { dir, part: Some(part) };
-        let meshing = schedule::Meshing { lone_parts: plan.lone_parts, field: None };
+        let meshing = schedule::Meshing { lone_parts: plan.lone_parts, field: None, memory };
         let (mut report, records, texture) =
             schedule::build_levels(&hf, &grid, &tree, colour.as_ref(), opts, target, meshing)?;
         report.threads = threads;
         report.peak_rss_bytes = peak_rss();
+        report.memory_limit_bytes = memory.map(Memory::limit);
+        report.scratch_bytes = memory.map_or(0, Memory::mapped_bytes);
         let mut extras = tileset_extras(&hf, opts, &tree);
         extras.source =
             SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;

@@ -82,6 +82,11 @@ pub struct Report {
     pub thread_seconds: ChunkStageTimes,
     /// Peak resident memory, bytes (Linux VmHWM), if known.
     pub peak_rss_bytes: Option<u64>,
+    /// The memory limit the build kept to, bytes (`None`: no limit).
+    pub memory_limit_bytes: Option<u64>,
+    /// Bytes of whole-grid arrays kept in mapped scratch files, past the
+    /// limit's share ([`crate::store`]); 0 when all fit in memory.
+    pub scratch_bytes: u64,
     /// Threads used.
     pub threads: usize,
     /// Levels added at the bottom (same footprint, half the δ) so that the
@@ -466,7 +471,15 @@ impl std::fmt::Display for Summary<'_> {
             )?;
         }
         if let Some(b) = r.peak_rss_bytes {
-            writeln!(f, "peak memory: {:.1} MB", b as f64 / 1e6)?;
+            let limit = r.memory_limit_bytes.map_or(String::new(), |l| format!(" (limit {:.0} MB)", l as f64 / 1e6));
+            writeln!(f, "peak memory: {:.1} MB{limit}", b as f64 / 1e6)?;
+        }
+        if r.scratch_bytes > 0 {
+            writeln!(
+                f,
+                "{:.1} MB of grid-sized arrays in scratch files beside the output (unlinked, gone when the build ends)",
+                r.scratch_bytes as f64 / 1e6
+            )?;
         }
         Ok(())
     }

@@ -15,7 +15,7 @@ use super::report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Repor
 use super::{BuildError, BuildOptions};
 use crate::chunk::Chunk;
 use crate::config::{Config, Mesher, dense_leaf_cells};
-use crate::heightfield::{Heightfield, void_fill};
+use crate::heightfield::{Heightfield, void_fill_in};
 use crate::mesh::decimate::{CUT_SHARE, U16_INDEXED};
 use crate::mesh::grid::Grid;
 use crate::mesh::rtin::{self, Rtin};
@@ -27,7 +27,8 @@ use crate::progress;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
 use crate::shard::TreePart;
-use crate::texture::source::{generate, generated_to_px, load_image};
+use crate::store::Memory;
+use crate::texture::source::{generate_in, generated_to_px, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureExtras, TextureSource, Texturer};
 
 /// What [`build_into`] hands back: the report so far, the tree, the index
@@ -36,9 +37,15 @@ pub(super) type Built = (Report, ChunkTree, Vec<TileRecord>, Option<TextureExtra
 
 /// Plans the tree and builds every chunk into `tmp`, planning again with
 /// narrower leaves or one more refine level where a chunk is too dense.
-pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> Result<Built, BuildError> {
+pub(super) fn build_into(
+    hf: &Heightfield,
+    opts: &BuildOptions,
+    tmp: &Path,
+    memory: Option<&Memory>,
+) -> Result<Built, BuildError> {
     let t = Instant::now();
-    let filled = void_fill(hf);
+    let scratch = |source| BuildError::Io { path: tmp.to_path_buf(), source };
+    let filled = void_fill_in(hf, memory).map_err(scratch)?;
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let t_fill = t.elapsed();
     // The plan needs only the colour source's scale, which a generated
@@ -56,7 +63,7 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
         }
         TextureSource::Generated => {
             let ((colour, t), plan) = rayon::join(
-                || timed(|| generate(hf, filled.as_deref(), &opts.config)),
+                || timed(|| generate_in(hf, filled.as_deref(), &opts.config, memory)),
                 || plan(Some(generated_to_px(hf, &opts.config))),
             );
             (Some((colour?, t)), plan)
@@ -79,7 +86,8 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
     let mut field: Option<Rtin> = None;
     loop {
         if opts.config.mesher == Mesher::Rtin {
-            refine = counted_refine(hf, &grid, &opts.config, leaf_cells, refine, &mut field);
+            refine =
+                counted_refine(hf, &grid, &opts.config, leaf_cells, refine, &mut field, memory).map_err(scratch)?;
             estimated = estimated.max(refine);
         }
         let tree = chunk_tree(&opts.config, [hf.width, hf.height], leaf_cells, refine);
@@ -91,7 +99,7 @@ pub(super) fn build_into(hf: &Heightfield, opts: &BuildOptions, tmp: &Path) -> R
         let discarded = attempts.elapsed();
         let lone_parts = lone_parts(&tree, &mut estimate);
         let target = Target { dir: tmp, part: None };
-        let meshing = Meshing { lone_parts, field: field.as_ref() };
+        let meshing = Meshing { lone_parts, field: field.as_ref(), memory };
         match build_levels(hf, &grid, &tree, colour.as_ref(), opts, target, meshing) {
             Ok((mut report, records, texture)) => {
                 report.refine_levels = refine;
@@ -136,13 +144,16 @@ pub(crate) fn counted_refine(
     leaf_cells: u32,
     mut refine: u32,
     field: &mut Option<Rtin>,
-) -> u32 {
+    memory: Option<&Memory>,
+) -> std::io::Result<u32> {
     let sag = sag(hf, cfg);
     loop {
         let tree = chunk_tree(cfg, [hf.width, hf.height], leaf_cells, refine);
         let step = height_step(hf, &tree, cfg);
         if !field.as_ref().is_some_and(|f| f.serves(&tree, step, sag)) {
-            *field = Some(Rtin::new(grid, &tree, step, sag));
+            // The old field goes first: two would hold twice the memory.
+            *field = None;
+            *field = Some(Rtin::new_in(grid, &tree, step, sag, memory)?);
         }
         let f = field.as_ref().expect("made above");
         match f.densest_over(&tree, cfg.max_chunk_vertices as usize) {
@@ -151,7 +162,7 @@ pub(crate) fn counted_refine(
             {
                 refine += 1
             }
-            _ => return refine,
+            _ => return Ok(refine),
         }
     }
 }
@@ -207,11 +218,12 @@ pub(super) struct Target<'p> {
 }
 
 /// What the plan decided for the mesher beyond the tree: whether lone
-/// chunks fill by parts (the TIN), and the bintree's error field where one
-/// was made for the tree already.
+/// chunks fill by parts (the TIN), the bintree's error field where one
+/// was made for the tree already, and the memory limit a new one keeps to.
 pub(super) struct Meshing<'r> {
     pub(super) lone_parts: bool,
     pub(super) field: Option<&'r Rtin>,
+    pub(super) memory: Option<&'r Memory>,
 }
 
 pub(super) fn build_levels(
@@ -224,7 +236,7 @@ pub(super) fn build_levels(
     meshing: Meshing,
 ) -> Result<(Report, Vec<TileRecord>, Option<TextureExtras>), BuildError> {
     let Target { dir: tmp, part } = target;
-    let Meshing { lone_parts, field } = meshing;
+    let Meshing { lone_parts, field, memory } = meshing;
     let cfg = &opts.config;
     let generator = format!("terrachunk {}", env!("CARGO_PKG_VERSION"));
     let planned: usize = (0..tree.delta_m.len()).map(|l| tree.xs[l].len() * tree.zs[l].len()).sum();
@@ -239,7 +251,8 @@ pub(super) fn build_levels(
     let rtin = match (cfg.mesher, field) {
         (Mesher::Rtin, Some(f)) if f.serves(tree, step, sag) => Some(f),
         (Mesher::Rtin, _) => {
-            own = Rtin::new(grid, tree, step, sag);
+            own = Rtin::new_in(grid, tree, step, sag, memory)
+                .map_err(|source| BuildError::Io { path: tmp.to_path_buf(), source })?;
             Some(&own)
         }
         (Mesher::Tin, _) => None,
@@ -263,6 +276,7 @@ pub(super) fn build_levels(
         rtin,
         globe: globe.as_ref(),
         part,
+        memory_limit: memory.map(Memory::limit),
         timers: Timers {
             mesh: AtomicU64::new(0),
             skirt_morph: AtomicU64::new(0),
@@ -354,6 +368,11 @@ fn take_error<T>(results: &mut Vec<Result<T, BuildError>>) -> Option<BuildError>
 /// small error, at most `max_chunk_vertices` each, is the worst case.
 const LEVEL_FIRST_CHUNKS: usize = 16;
 
+/// What a chunk held while its level waits costs per vertex at most: its
+/// mesh (vertex, triangles, their scans) and its chunk (positions, normals,
+/// morph deltas, skirts), about 200 bytes measured, with room to spare.
+const BYTES_PER_HELD_VERTEX: u64 = 256;
+
 /// What one chunk adds to the report and the index.
 pub(super) struct BuiltChunk {
     pub(super) record: TileRecord,
@@ -396,6 +415,8 @@ pub(super) struct Run<'a> {
     pub(super) globe: Option<&'a crate::geodesy::Globe>,
     /// One job's part of the tree (a sharded build), or the whole tree.
     pub(super) part: Option<&'a TreePart>,
+    /// The build's memory limit, bytes, if any.
+    pub(super) memory_limit: Option<u64>,
     pub(super) timers: Timers,
     pub(super) bytes: AtomicU64,
     /// Set on the first error, so the other subtrees stop early.
@@ -428,11 +449,17 @@ impl Run<'_> {
             return self.under(roots);
         }
         let tree = self.tree;
+        // Under a memory limit, a level is held whole only while a quarter
+        // of the limit takes its meshes and chunks at their largest.
+        let most_chunks = self.memory_limit.map_or(LEVEL_FIRST_CHUNKS, |limit| {
+            let per_chunk = self.opts.config.max_chunk_vertices as u64 * BYTES_PER_HELD_VERTEX;
+            ((limit / 4) / per_chunk.max(1)).clamp(1, LEVEL_FIRST_CHUNKS as u64) as usize
+        });
         let level_first = (0..=tree.depth())
             .take_while(|&l| {
                 let [wx, wz] = tree.widest_cells(l).map(|c| c as usize + 1);
                 let l = l as usize;
-                wx * wz > U16_INDEXED && tree.xs[l].len() * tree.zs[l].len() <= LEVEL_FIRST_CHUNKS
+                wx * wz > U16_INDEXED && tree.xs[l].len() * tree.zs[l].len() <= most_chunks
             })
             .count();
         let mut done = Vec::new();
@@ -466,7 +493,7 @@ impl Run<'_> {
                     let (mesh, meshed) = r.expect("no error above");
                     let kids = self.kids(meshed.chunk.key, meshed.leaf);
                     unwritten.push(meshed);
-                    (Some(mesh), kids)
+                    (self.for_children(mesh), kids)
                 })
                 .collect();
         }
@@ -493,6 +520,13 @@ impl Run<'_> {
             done.extend(b.expect("no error above"));
         }
         Ok(done)
+    }
+
+    /// A chunk's mesh, where its children start from it: the greedy TIN's
+    /// do; the bintree's are cut from the error field alone, so it is
+    /// dropped at once (a level of them took 100 MB on California).
+    fn for_children(&self, mesh: ChunkMesh) -> Option<ChunkMesh> {
+        self.rtin.is_none().then_some(mesh)
     }
 
     /// Marks this build as failed: other chunks stop early.
@@ -594,8 +628,9 @@ impl Run<'_> {
         };
         let kids = self.kids(built.record.key, built.leaf);
         let mut all = vec![built];
+        let mesh = self.for_children(mesh);
         let below: Vec<Result<Vec<BuiltChunk>, BuildError>> =
-            kids.par_iter().map(|&k| self.subtree(k, Some(&mesh))).collect();
+            kids.par_iter().map(|&k| self.subtree(k, mesh.as_ref())).collect();
         drop(mesh);
         for b in below {
             all.extend(b?);

@@ -561,7 +561,7 @@ mod tests {
     fn a_tile_on_pixel_centres_is_the_resampled_tile_byte_for_byte() {
         let (width, height) = (7, 5);
         let mut state = 0x2545_f491_u32;
-        let rgb = (0..width * height * 3)
+        let rgb: Vec<u8> = (0..width * height * 3)
             .map(|_| {
                 state ^= state << 13;
                 state ^= state >> 17;
@@ -572,7 +572,7 @@ mod tests {
         let source = ColourSource {
             width,
             height,
-            rgb,
+            rgb: rgb.into(),
             to_px: [(0.0, 1.0), (0.0, 1.0)],
             texel_m: [1.0, 1.0],
             name: "noise".into(),

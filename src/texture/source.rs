@@ -19,6 +19,7 @@ use super::resample::{Raster, SRGB_TO_LINEAR, linear_to_srgb};
 use crate::config::Config;
 use crate::dem::geotiff::{RawGeoref, load_rgb8};
 use crate::heightfield::{Crs, Heightfield};
+use crate::store::{Big, Memory};
 
 /// The most pixels a colour source may hold (2^30: 3 GiB of RGB).
 pub const MAX_SOURCE_PIXELS: usize = 1 << 30;
@@ -30,8 +31,9 @@ pub struct ColourSource {
     pub width: usize,
     /// Rows.
     pub height: usize,
-    /// Row-major sRGB, 3 bytes per pixel.
-    pub rgb: Vec<u8>,
+    /// Row-major sRGB, 3 bytes per pixel (a generated map past a build's
+    /// memory limit in a mapped scratch file, [`crate::store`]).
+    pub rgb: Big<u8>,
     /// DEM grid coordinate → source pixel coordinate, per axis (column,
     /// row): `pixel = offset + scale · grid`, pixel `j`'s centre at `j`.
     pub to_px: [(f64, f64); 2],
@@ -116,7 +118,7 @@ pub fn load_image(path: &Path, hf: &Heightfield) -> Result<ColourSource, Texture
     Ok(ColourSource {
         width,
         height,
-        rgb,
+        rgb: rgb.into(),
         to_px,
         texel_m,
         name: path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned()),
@@ -217,6 +219,17 @@ pub fn generated_to_px(hf: &Heightfield, cfg: &Config) -> [(f64, f64); 2] {
 /// heights) gives nodata samples a plausible colour where a triangle
 /// reaches over them.
 pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Result<ColourSource, TextureError> {
+    generate_in(hf, filled, cfg, None)
+}
+
+/// [`generate`], the map in a scratch file where `memory` says one its
+/// size goes to one.
+pub fn generate_in(
+    hf: &Heightfield,
+    filled: Option<&[f32]>,
+    cfg: &Config,
+    memory: Option<&Memory>,
+) -> Result<ColourSource, TextureError> {
     let m = cfg.hillshade_multiple;
     let [width, height] = generated_size(hf, cfg);
     if width.checked_mul(height).is_none_or(|n| n > MAX_SOURCE_PIXELS) {
@@ -243,7 +256,8 @@ pub fn generate(hf: &Heightfield, filled: Option<&[f32]>, cfg: &Config) -> Resul
     let gz = |r: usize| (r * (hf.height - 1)) as f64 / (height - 1) as f64;
     let (ex, ez) = ((hf.width - 1) as f64 / (width - 1) as f64, (hf.height - 1) as f64 / (height - 1) as f64);
     let [sx, sz] = hf.spacing_m;
-    let mut rgb = vec![0u8; width * height * 3];
+    let mut rgb = Big::filled(width * height * 3, 0u8, memory)
+        .map_err(|e| TextureError::TooLarge(format!("the generated colour map: {e}")))?;
     // One texel per sample (the default): every point read is a sample,
     // where `at` gives the sample itself, so it is read directly.
     let on_samples = width == hf.width && height == hf.height;
@@ -448,10 +462,10 @@ mod tests {
         assert!(flat.rgb.chunks(3).all(|p| p == LAND[0].1), "{:?}", &flat.rgb[..3]);
         // Rising to the south-east, so it faces the north-west sun (azimuth 315°).
         let slope: Vec<f32> = (0..25).map(|k| 88.0 + 3.0 * ((k / 5) + (k % 5)) as f32).collect();
-        let lit = generate(&Heightfield { heights: slope.clone(), ..hf.clone() }, None, &cfg).unwrap();
+        let lit = generate(&Heightfield { heights: slope.clone().into(), ..hf.clone() }, None, &cfg).unwrap();
         // Falling to the south-east: turned away from it.
         let away: Vec<f32> = slope.iter().map(|h| 200.0 - h).collect();
-        let dark = generate(&Heightfield { heights: away, ..hf }, None, &cfg).unwrap();
+        let dark = generate(&Heightfield { heights: away.into(), ..hf }, None, &cfg).unwrap();
         // The centre sample is mid-range in both, so both have the same tint.
         let tint = Tint::new((88.0, 112.0), 0.0).at(100.0).map(linear_to_srgb);
         let (l, d) = (&lit.rgb[12 * 3..12 * 3 + 3], &dark.rgb[12 * 3..12 * 3 + 3]);

@@ -206,7 +206,12 @@ pub fn verify_with_progress(
         }
         (None, None) => None,
     };
-    let opts = LoadOptions { vertical_scale: Some(extras.vertical_scale), spacing_m: Some(extras.spacing_m), geoid };
+    let opts = LoadOptions {
+        vertical_scale: Some(extras.vertical_scale),
+        spacing_m: Some(extras.spacing_m),
+        geoid,
+        memory: None,
+    };
     let hf = dem::load(&sources, &opts)?;
     if [hf.width as u32, hf.height as u32] != [extras.grid.width, extras.grid.height] {
         report.failures.push(format!(

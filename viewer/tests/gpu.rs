@@ -58,7 +58,7 @@ fn fixture() -> MutexGuard<'static, Fixture> {
         })
         .unwrap();
         let reference = Heights::from_leaves(&Tileset::open(&dir).unwrap());
-        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem: heights })
+        Mutex::new(Fixture { _tmp: tmp, dir, reference, valid, dem: heights.into_vec() })
     })
     .lock()
     .unwrap_or_else(|e| e.into_inner())

@@ -330,7 +330,7 @@ mod tests {
         let hf = Heightfield {
             width: w,
             height: h,
-            heights,
+            heights: heights.into(),
             spacing_m: [30.0, 30.0],
             georef: Default::default(),
             source: "test".into(),
