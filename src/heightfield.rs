@@ -179,8 +179,7 @@ pub fn void_fill_in(hf: &Heightfield, memory: Option<&Memory>) -> std::io::Resul
         return Ok(None);
     }
     // levels[0] = the grid; each next one halves both sizes (rounding up).
-    let mut grid = Big::filled(hf.heights.len(), 0.0, memory)?;
-    grid.copy_from_slice(&hf.heights);
+    let grid = Big::copied_from(&hf.heights, memory)?;
     let mut levels: Vec<(usize, usize, Big<f32>)> = vec![(hf.width, hf.height, grid)];
     while {
         let (w, h, _) = &levels[levels.len() - 1];

@@ -211,20 +211,29 @@ impl<T: Plain> Big<T> {
         }
     }
 
-    /// `v` moved into a scratch file where `memory` says so (its memory is
-    /// freed once copied), else kept.
-    pub fn from_vec_in(v: Vec<T>, memory: Option<&Memory>) -> io::Result<Self> {
-        let bytes = v.len() * size_of::<T>();
+    /// A copy of `values`: in a scratch file where `memory` says an array
+    /// this size goes to one, else a `Vec`.
+    pub fn copied_from(values: &[T], memory: Option<&Memory>) -> io::Result<Self> {
+        let bytes = std::mem::size_of_val(values);
         match memory {
             Some(m) if bytes > 0 && m.maps(bytes as u64) => {
-                let mut big = Self::mapped(v.len(), bytes, m)?;
+                let mut big = Self::mapped(values.len(), bytes, m)?;
                 let step = BULK_STEP / size_of::<T>();
-                for (part, from) in big.chunks_mut(step).zip(v.chunks(step)) {
+                for (part, from) in big.chunks_mut(step).zip(values.chunks(step)) {
                     part.copy_from_slice(from);
                     m.inner.relieve();
                 }
                 Ok(big)
             }
+            _ => Ok(Big { backing: Backing::Heap(values.to_vec()) }),
+        }
+    }
+
+    /// `v` moved into a scratch file where `memory` says so (its memory is
+    /// freed once copied), else kept.
+    pub fn from_vec_in(v: Vec<T>, memory: Option<&Memory>) -> io::Result<Self> {
+        match memory {
+            Some(m) if m.maps(std::mem::size_of_val(v.as_slice()) as u64) => Self::copied_from(&v, memory),
             _ => Ok(Big { backing: Backing::Heap(v) }),
         }
     }
@@ -348,12 +357,6 @@ impl<T: Plain + PartialEq> PartialEq<Big<T>> for Vec<T> {
 impl<T: Plain + PartialEq> PartialEq for Big<T> {
     fn eq(&self, other: &Big<T>) -> bool {
         **self == **other
-    }
-}
-
-impl<T: Plain> FromIterator<T> for Big<T> {
-    fn from_iter<I: IntoIterator<Item = T>>(iter: I) -> Self {
-        Big { backing: Backing::Heap(iter.into_iter().collect()) }
     }
 }
 

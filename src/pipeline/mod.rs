@@ -76,8 +76,14 @@ fn memory(cfg: &Config, dir: &Path) -> Option<Memory> {
     cfg.memory_limit_bytes().ok().flatten().map(|limit| Memory::new(limit, dir))
 }
 
+/// The folder that holds `path` (its parent, `.` for a bare name): where
+/// a job's or a plan's scratch files go.
+fn beside(path: &Path) -> &Path {
+    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
 /// Where a build's scratch files failed (the message names the file).
-fn scratch_error(dir: &Path, source: std::io::Error) -> BuildError {
+pub(super) fn scratch_error(dir: &Path, source: std::io::Error) -> BuildError {
     BuildError::Io { path: dir.to_path_buf(), source }
 }
 
@@ -394,7 +400,7 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
     opts.config.validate()?;
     let cfg = &opts.config;
     // Scratch files beside OUT (they are unlinked at once).
-    let scratch = opts.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let scratch = beside(&opts.out);
     let memory = memory(cfg, scratch);
     let memory = memory.as_ref();
     let hf = dem::load(&opts.inputs, &load_options(opts, memory))?;
@@ -424,7 +430,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
     opts.config.validate()?;
     let cfg = &opts.config;
     // Scratch files beside the job's folder (they are unlinked at once).
-    let scratch = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let scratch = beside(dir);
     let memory = memory(cfg, scratch);
     let memory = memory.as_ref();
     let hf = dem::load(&opts.inputs, &load_options(opts, memory))?;

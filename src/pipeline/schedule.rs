@@ -44,7 +44,7 @@ pub(super) fn build_into(
     memory: Option<&Memory>,
 ) -> Result<Built, BuildError> {
     let t = Instant::now();
-    let scratch = |source| BuildError::Io { path: tmp.to_path_buf(), source };
+    let scratch = |source| super::scratch_error(tmp, source);
     let filled = void_fill_in(hf, memory).map_err(scratch)?;
     let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
     let t_fill = t.elapsed();
@@ -251,8 +251,7 @@ pub(super) fn build_levels(
     let rtin = match (cfg.mesher, field) {
         (Mesher::Rtin, Some(f)) if f.serves(tree, step, sag) => Some(f),
         (Mesher::Rtin, _) => {
-            own = Rtin::new_in(grid, tree, step, sag, memory)
-                .map_err(|source| BuildError::Io { path: tmp.to_path_buf(), source })?;
+            own = Rtin::new_in(grid, tree, step, sag, memory).map_err(|e| super::scratch_error(tmp, e))?;
             Some(&own)
         }
         (Mesher::Tin, _) => None,
