@@ -677,21 +677,8 @@ impl Field<'_> {
     /// The error of vertex `m`: the largest over the (one or two) triangles
     /// split there that reach into the grid.
     fn vertex(&self, c: u32, square: bool, m: P) -> f32 {
-        let h = c / 2;
-        let tris: [Option<Tri>; 2] = if square {
-            // The square of side c centred at m, cut by its diagonal.
-            let (x0, z0) = (m.0 - h, m.1 - h);
-            square_triangles(x0, z0, c).map(|(t, _)| Some(t))
-        } else if m.1.is_multiple_of(c) {
-            // A horizontal side: apexes at the centres above and below.
-            let (p, q) = ((m.0 - h, m.1), (m.0 + h, m.1));
-            [m.1.checked_sub(h).map(|zu| Tri { a: q, b: p, r: (m.0, zu) }), Some(Tri { a: p, b: q, r: (m.0, m.1 + h) })]
-        } else {
-            let (p, q) = ((m.0, m.1 - h), (m.0, m.1 + h));
-            [m.0.checked_sub(h).map(|xl| Tri { a: p, b: q, r: (xl, m.1) }), Some(Tri { a: q, b: p, r: (m.0 + h, m.1) })]
-        };
         let mut e = 0.0f32;
-        for t in tris.into_iter().flatten() {
+        for t in split_at(c, square, m).into_iter().flatten() {
             match place(&t, self.xmax, self.zmax) {
                 Place::Outside => {}
                 Place::Straddles => return f32::INFINITY,
@@ -737,6 +724,102 @@ impl Field<'_> {
         }
         e
     }
+}
+
+/// The (one or two) triangles of the squares of `c` split at `m`: the
+/// halves of the square centred there (`square`), or the two whose
+/// hypotenuse is the side through it.
+fn split_at(c: u32, square: bool, m: P) -> [Option<Tri>; 2] {
+    let h = c / 2;
+    if square {
+        // The square of side c centred at m, cut by its diagonal.
+        let (x0, z0) = (m.0 - h, m.1 - h);
+        square_triangles(x0, z0, c).map(|(t, _)| Some(t))
+    } else if m.1.is_multiple_of(c) {
+        // A horizontal side: apexes at the centres above and below.
+        let (p, q) = ((m.0 - h, m.1), (m.0 + h, m.1));
+        [m.1.checked_sub(h).map(|zu| Tri { a: q, b: p, r: (m.0, zu) }), Some(Tri { a: p, b: q, r: (m.0, m.1 + h) })]
+    } else {
+        let (p, q) = ((m.0, m.1 - h), (m.0, m.1 + h));
+        [m.0.checked_sub(h).map(|xl| Tri { a: p, b: q, r: (xl, m.1) }), Some(Tri { a: q, b: p, r: (m.0 + h, m.1) })]
+    }
+}
+
+/// The samples where the pass's error is infinite on a grid of `wc` × `hc`
+/// cells, up to squares of `top`: a triangle there reaches past the grid,
+/// or one below it does. They depend on the grid's size alone and lie
+/// along its last column and row, as many as its cell counts are odd:
+/// with an odd count every triangle along that side splits down to one
+/// cell, at every level.
+fn forced_points(wc: u32, hc: u32, top: u32) -> std::collections::HashSet<P> {
+    let mut forced = std::collections::HashSet::new();
+    let mut c = 2;
+    while c <= top {
+        for square in [false, true] {
+            let h = c / 2;
+            // A triangle split at m, and everything below it, lies within
+            // 2c of m: farther from the last column and row, m is finite.
+            let near = |x: u32, z: u32| x + 2 * c > wc || z + 2 * c > hc;
+            let mut z = if square { h } else { 0 };
+            while z <= hc {
+                let first = if square || z.is_multiple_of(c) { h } else { 0 };
+                // Only the columns near the last one, unless the row is near the last.
+                let mut x = if z + 2 * c > hc { first } else { first.max(wc.saturating_sub(2 * c)) };
+                x = first + (x - first) / c * c;
+                while x <= wc {
+                    if near(x, z)
+                        && split_at(c, square, (x, z)).into_iter().flatten().any(|t| match place(&t, wc, hc) {
+                            Place::Outside => false,
+                            Place::Straddles => true,
+                            Place::Inside => {
+                                t.children((x, z)).iter().any(|k| k.midpoint().is_some_and(|km| forced.contains(&km)))
+                            }
+                        })
+                    {
+                        forced.insert((x, z));
+                    }
+                    x += c;
+                }
+                z += if square { c } else { h };
+            }
+        }
+        c *= 2;
+    }
+    forced
+}
+
+/// The top squares' side (as `root_cells`) a bintree tree over `width` ×
+/// `height` samples needs so that no top chunk spends more than half of
+/// `max_vertices` on [`forced_points`]: `root_cells` itself where it
+/// already does. Grids whose cell counts are odd, or divisible by only a
+/// small power of two, get narrower top chunks when large.
+pub fn fitting_root(width: usize, height: usize, root_cells: Option<u32>, max_vertices: usize) -> Option<u32> {
+    let (wc, hc) = ((width - 1) as u32, (height - 1) as u32);
+    let mut top = wc.max(hc).max(1).next_power_of_two();
+    if let Some(r) = root_cells {
+        top = top.min(floor_pow2(r.max(2)));
+    }
+    let forced = forced_points(wc, hc, top);
+    let natural = top;
+    while top > 2 {
+        // Each forced point counts in every closed square it lies in.
+        let mut counts: HashMap<P, usize> = HashMap::new();
+        for &(x, z) in &forced {
+            let (i, j) = (x / top, z / top);
+            let is = [Some(i), (x.is_multiple_of(top) && i > 0).then(|| i - 1)];
+            let js = [Some(j), (z.is_multiple_of(top) && j > 0).then(|| j - 1)];
+            for jj in js.into_iter().flatten() {
+                for ii in is.into_iter().flatten() {
+                    *counts.entry((ii, jj)).or_default() += 1;
+                }
+            }
+        }
+        if counts.values().max().map_or(0, |&n| n + 4) <= max_vertices / 2 {
+            break;
+        }
+        top /= 2;
+    }
+    if top == natural { root_cells } else { Some(top) }
 }
 
 /// Rungs [`Rtin::densest_over`] tells apart; higher ones count as the last
@@ -1043,6 +1126,56 @@ mod tests {
                 assert!((on - s).abs() <= mesh.delta_m, "{:?}: sample ({x}, {z}) is {} off", mesh.key, (on - s).abs());
             }
         }
+    }
+
+    #[test]
+    fn forced_points_are_where_the_pass_finds_infinite_errors() {
+        for (w, h) in [(3, 3), (4, 4), (37, 21), (64, 33), (100, 100), (129, 65), (200, 7)] {
+            let heights = vec![5.0f32; w * h];
+            let grid = Grid::new(w, h, &heights, None);
+            let tree = plan(w, h, 1.0, None, 2, 0);
+            let rtin = Rtin::new(&grid, &tree, None, None);
+            let top = square_side(&tree, 0);
+            let forced = forced_points((w - 1) as u32, (h - 1) as u32, top);
+            for z in 0..h as u32 {
+                for x in 0..w as u32 {
+                    assert_eq!(
+                        rtin.error_at(x, z).is_infinite(),
+                        forced.contains(&(x, z)),
+                        "{w}×{h}: sample ({x}, {z})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_grid_of_odd_cell_counts_gets_top_chunks_that_fit_their_vertex_limit() {
+        // 999 cells each way: every triangle along the last column and row
+        // splits down to one cell, so one top chunk over all of it would
+        // carry both sides at full resolution even on flat ground.
+        let (w, h) = (1000, 1000);
+        let heights = vec![5.0f32; w * h];
+        let grid = Grid::new(w, h, &heights, None);
+        let limit = 2000;
+        let whole = plan(w, h, 1.0, None, 64, 0);
+        let rtin = Rtin::new(&grid, &whole, None, None);
+        let root = rtin.build_chunk(&grid, &whole, ChunkKey { level: 0, x: 0, y: 0 }, usize::MAX, None, None);
+        assert!(root.unwrap().vertices.len() > limit, "the grid needs narrower top chunks");
+        let root_cells = fitting_root(w, h, None, limit).expect("narrower than the grid");
+        assert!(root_cells < 1024);
+        let tree = plan(w, h, 1.0, Some(root_cells), 64, 0);
+        let rtin = Rtin::new(&grid, &tree, None, None);
+        for y in 0..tree.zs[0].len() as u32 {
+            for x in 0..tree.xs[0].len() as u32 {
+                let key = ChunkKey { level: 0, x, y };
+                let mesh = rtin.build_chunk(&grid, &tree, key, limit, None, None).unwrap();
+                check(&mesh, w, &heights);
+            }
+        }
+        // Even cell counts with a large power of two keep one top chunk.
+        assert_eq!(fitting_root(1025, 1025, None, limit), None);
+        assert_eq!(fitting_root(1025, 1025, Some(512), limit), Some(512));
     }
 
     #[test]

@@ -110,6 +110,10 @@ pub struct Report {
     /// included: they make no chunk) and the widest, in cells (one unless
     /// the grid is elongated or `root_cells` is set).
     pub roots: (usize, u32),
+    /// The top-level chunks are narrower than `root_cells` asks (or than
+    /// the grid) because the grid's last column or row is off the
+    /// bintree's coarse lines ([`crate::mesh::rtin::fitting_root`]).
+    pub roots_narrowed: bool,
     /// Quantized output: chunks meshed again with a wider margin next to
     /// cut points, so that rounding those sideways to the grid keeps δ.
     pub remeshed_for_cut_points: usize,
@@ -438,12 +442,19 @@ impl std::fmt::Display for Summary<'_> {
             let written = r.levels.first().map_or(0, |l| l.chunks);
             writeln!(
                 f,
-                "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}",
+                "{written} top-level chunks, up to {} cells wide, each the top of its own tree{}{}",
                 r.roots.1,
                 if written < r.roots.0 {
                     format!(" ({} more footprints hold no valid sample)", r.roots.0 - written)
                 } else {
                     String::new()
+                },
+                if r.roots_narrowed {
+                    ": the grid's cell counts are odd or hold a small power of two, so the bintree splits \
+                     its last column and row down to single cells at every level, which wider top chunks \
+                     could not hold within max_chunk_vertices"
+                } else {
+                    ""
                 }
             )?;
         }

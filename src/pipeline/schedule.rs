@@ -108,6 +108,13 @@ pub(super) fn build_into(
                 report.leaf_cells = leaf_cells;
                 report.leaf_width_cells = tree.widest_cells(tree.depth()).into_iter().max().unwrap_or(0);
                 report.roots = (tree.roots().len(), tree.widest_cells(0).into_iter().max().unwrap_or(0));
+                report.roots_narrowed = opts.config.mesher == Mesher::Rtin
+                    && rtin::fitting_root(
+                        hf.width,
+                        hf.height,
+                        opts.config.root_cells,
+                        opts.config.max_chunk_vertices as usize,
+                    ) != opts.config.root_cells;
                 return Ok((report, tree, records, texture, [t_plan, t_source, t.elapsed()]));
             }
             // Leaves wider than a dense leaf may be: refine levels keep their
@@ -186,7 +193,10 @@ pub(crate) fn chunk_tree(cfg: &Config, size: [usize; 2], leaf_cells: u32, refine
     let [w, h] = size;
     match cfg.mesher {
         Mesher::Tin => ChunkTree::plan_rooted(w, h, cfg.max_error_m, cfg.root_cells, leaf_cells, refine),
-        Mesher::Rtin => rtin::plan(w, h, cfg.max_error_m, cfg.root_cells, leaf_cells, refine),
+        Mesher::Rtin => {
+            let root_cells = rtin::fitting_root(w, h, cfg.root_cells, cfg.max_chunk_vertices as usize);
+            rtin::plan(w, h, cfg.max_error_m, root_cells, leaf_cells, refine)
+        }
     }
 }
 
