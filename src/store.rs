@@ -91,6 +91,16 @@ impl Memory {
         self.inner.limit
     }
 
+    /// Brings the resident size back under the governor's mark now, where
+    /// it is over (see [`Grid::relieve`](crate::mesh::grid::Grid::relieve)).
+    pub fn relieve(&self) {
+        // Nothing to give back (and no resident size to read) until an
+        // array is mapped.
+        if self.inner.mapped.load(Ordering::Relaxed) > 0 {
+            self.inner.relieve();
+        }
+    }
+
     /// Bytes of arrays placed in scratch files so far.
     pub fn mapped_bytes(&self) -> u64 {
         self.inner.mapped.load(Ordering::Relaxed)
@@ -191,6 +201,15 @@ unsafe impl<T: Plain> Sync for Big<T> {}
 static SCRATCH_COUNT: AtomicU64 = AtomicU64::new(0);
 
 impl<T: Plain> Big<T> {
+    /// Gives mapped pages back where the process is over its share of the
+    /// limit, as [`Memory::relieve`] (nothing for an array in memory): for
+    /// a scan of the whole array to call between parts.
+    pub fn relieve(&self) {
+        if let Backing::Mapped { memory, .. } = &self.backing {
+            memory.relieve();
+        }
+    }
+
     /// `len` copies of `value`: in a scratch file where `memory` says an
     /// array this size goes to one, else a `Vec`.
     pub fn filled(len: usize, value: T, memory: Option<&Memory>) -> io::Result<Self> {

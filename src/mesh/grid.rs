@@ -2,6 +2,7 @@
 //! of it ([`Window`]).
 
 use crate::quadtree::Span;
+use crate::store::Memory;
 
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
 /// voids, a smooth fill used only for vertices forced onto nodata samples.
@@ -18,6 +19,9 @@ pub struct Grid<'a> {
     /// Largest minus smallest valid height of the whole grid, metres: the
     /// f32 margin of the border lines, which neighbours must agree on.
     pub relief_m: f64,
+    /// The memory limit the arrays above live under, if any: code that
+    /// touches many of their pages quickly gives some back as it goes.
+    pub memory: Option<&'a Memory>,
 }
 
 impl<'a> Grid<'a> {
@@ -28,11 +32,28 @@ impl<'a> Grid<'a> {
             .filter(|h| !h.is_nan())
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
         let relief_m = if hi >= lo { f64::from(hi) - f64::from(lo) } else { 0.0 };
-        Grid { width, height, heights, filled, relief_m }
+        Grid { width, height, heights, filled, relief_m, memory: None }
+    }
+
+    /// The same grid, its pages given back under `memory` by
+    /// [`Grid::relieve`].
+    pub fn governed(self, memory: Option<&'a Memory>) -> Self {
+        Grid { memory, ..self }
     }
 }
 
 impl Grid<'_> {
+    /// Gives mapped pages back where the process holds more than its
+    /// share of the memory limit. Passes that touch pages faster than the
+    /// limit's governor thread wakes (a coarse chunk spans gigabytes of a
+    /// large grid) call it every few thousand steps.
+    #[inline]
+    pub fn relieve(&self) {
+        if let Some(m) = self.memory {
+            m.relieve();
+        }
+    }
+
     #[inline]
     pub(crate) fn sample(&self, i: usize, j: usize) -> f32 {
         self.heights[i * self.width + j]

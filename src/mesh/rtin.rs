@@ -462,6 +462,7 @@ impl Rtin {
             globe,
             parent_points: Vec::new(),
             curved_error_m: 0.0,
+            splits: 0,
         };
         for (t, ph) in square_triangles(from.0, from.1, from.2) {
             match globe {
@@ -595,7 +596,11 @@ fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
     let z0 = a.z.min(b.z).min(c.z) as u32;
     let z1 = a.z.max(b.z).max(c.z) as u32;
     let edges = [(a, b), (b, c), (c, a)];
+    let large = z1 - z0 >= 512;
     let row = |z: u32| -> (f64, bool) {
+        if large && z.is_multiple_of(RELIEF_STEPS / 16) {
+            grid.relieve();
+        }
         let zf = f64::from(z);
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for (p, q) in edges {
@@ -625,13 +630,18 @@ fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
         (err, valid)
     };
     let join = |(e1, v1): (f64, bool), (e2, v2): (f64, bool)| (e1.max(e2), v1 || v2);
-    let (error, valid) = if z1 - z0 >= 512 {
+    let (error, valid) = if large {
         (z0..=z1).into_par_iter().map(row).reduce(|| (0.0, false), join)
     } else {
         (z0..=z1).map(row).fold((0.0, false), join)
     };
     Scan { error, valid }
 }
+
+/// Steps (splits, or rows of a scan) between looks at the memory limit:
+/// a coarse chunk of a large grid touches pages of its square faster than
+/// the limit's governor thread wakes.
+pub(crate) const RELIEF_STEPS: u32 = 4096;
 
 /// The bottom-up pass's state: the grid and the errors found so far.
 struct Field<'g> {
@@ -884,6 +894,9 @@ struct Mesher<'a> {
     /// The largest error bound plus sag of a written triangle (the curved
     /// frame only).
     curved_error_m: f64,
+    /// Triangles split so far: every few thousand the grid's memory limit
+    /// is looked at ([`Grid::relieve`]).
+    splits: u32,
 }
 
 /// What the descent carries to each corner: the parent surface there, as
@@ -973,6 +986,10 @@ impl Mesher<'_> {
                 }
             }
         };
+        self.splits += 1;
+        if self.splits.is_multiple_of(RELIEF_STEPS) {
+            self.grid.relieve();
+        }
         let [k0, k1] = t.children(m);
         self.descend(k0, [ph[2], ph[0], pm]);
         self.descend(k1, [ph[1], ph[2], pm]);

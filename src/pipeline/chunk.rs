@@ -148,7 +148,17 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
     let used: Vec<MeshVertex> = used.into_iter().map(|(v, _)| v).collect();
     let mut surface = Part {
         positions: used.iter().map(|v| [v.x * spacing[0], v.h, v.z * spacing[1]]).collect(),
-        normals: used.iter().map(|v| dem_normal(grid, spacing, v.x, v.z)).collect(),
+        normals: used
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                // A coarse chunk's vertices span much of the grid, a few pages each.
+                if (k as u32).is_multiple_of(crate::mesh::rtin::RELIEF_STEPS) {
+                    grid.relieve();
+                }
+                dem_normal(grid, spacing, v.x, v.z)
+            })
+            .collect(),
         morph_dy: Vec::new(),
         indices,
         ..Part::default()

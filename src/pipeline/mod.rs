@@ -406,7 +406,7 @@ pub fn plan_fixed(opts: &BuildOptions) -> Result<FixedPlan, BuildError> {
     let hf = dem::load(&opts.inputs, &load_options(opts, memory))?;
     check_extent(&hf, opts)?;
     let filled = void_fill_in(&hf, memory).map_err(|e| scratch_error(scratch, e))?;
-    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref()).governed(memory);
     let to_px = match &opts.texture {
         TextureSource::None => None,
         TextureSource::Image(path) => Some(load_image(path, &hf)?.to_px),
@@ -439,7 +439,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
     let pool = thread_pool(threads)?;
     pool.install(|| {
         let filled = void_fill_in(&hf, memory).map_err(|e| scratch_error(scratch, e))?;
-        let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+        let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref()).governed(memory);
         let colour = match &opts.texture {
             TextureSource::None => None,
             TextureSource::Image(path) => Some(load_image(path, &hf)?),

@@ -46,7 +46,7 @@ pub(super) fn build_into(
     let t = Instant::now();
     let scratch = |source| super::scratch_error(tmp, source);
     let filled = void_fill_in(hf, memory).map_err(scratch)?;
-    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref());
+    let grid = Grid::new(hf.width, hf.height, &hf.heights, filled.as_deref()).governed(memory);
     let t_fill = t.elapsed();
     // The plan needs only the colour source's scale, which a generated
     // map's size gives before it is made: the map is generated while the
