@@ -55,6 +55,9 @@ struct Inner {
     regions: Mutex<Vec<(usize, usize)>>,
     /// Bytes mapped so far (the build reports it).
     mapped: AtomicU64,
+    /// The largest resident size a look found, bytes: VmHWM misses
+    /// resident pages dropped before the kernel next updates it.
+    most_resident: AtomicU64,
     governor: Mutex<bool>,
 }
 
@@ -81,6 +84,7 @@ impl Memory {
                 scratch: scratch.to_path_buf(),
                 regions: Mutex::new(Vec::new()),
                 mapped: AtomicU64::new(0),
+                most_resident: AtomicU64::new(0),
                 governor: Mutex::new(false),
             }),
         }
@@ -99,6 +103,12 @@ impl Memory {
         if self.inner.mapped.load(Ordering::Relaxed) > 0 {
             self.inner.relieve();
         }
+    }
+
+    /// The largest resident size the governor and [`Memory::relieve`]
+    /// saw, bytes (0 before any array is mapped).
+    pub fn most_resident_bytes(&self) -> u64 {
+        self.inner.most_resident.load(Ordering::Relaxed)
     }
 
     /// Bytes of arrays placed in scratch files so far.
@@ -149,7 +159,9 @@ impl Inner {
     /// two looks); false where the resident size cannot be read.
     fn relieve(&self) -> bool {
         let Some(resident) = resident_pages() else { return false };
-        if resident * rustix::param::page_size() as u64 <= self.limit / 4 * 3 {
+        let resident = resident * rustix::param::page_size() as u64;
+        self.most_resident.fetch_max(resident, Ordering::Relaxed);
+        if resident <= self.limit / 4 * 3 {
             return true;
         }
         // Held while dropping: a mapping is unmapped only under this lock,
@@ -437,6 +449,12 @@ mod tests {
         let b = Big::from_vec_in(vec![7u8; 1 << 20], Some(&memory)).unwrap();
         assert!(b.is_mapped() && b.iter().all(|&v| v == 7));
         assert_eq!(memory.mapped_bytes(), 400_000 + (1 << 20));
+        // The copy looked at the resident size, which held at least the
+        // part it had written: the build's peak reports it where VmHWM
+        // missed it.
+        let before = memory.most_resident_bytes();
+        memory.relieve();
+        assert!(memory.most_resident_bytes() >= before && before > 0);
         let small = Big::filled(10, 1.0f32, Some(&memory)).unwrap();
         assert!(!small.is_mapped(), "an array within an eighth of the limit stays in memory");
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "scratch files are unlinked once mapped");

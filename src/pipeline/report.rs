@@ -80,7 +80,9 @@ pub struct Report {
     pub seconds: StageTimes,
     /// Thread-seconds spent inside each per-chunk stage (summed over threads).
     pub thread_seconds: ChunkStageTimes,
-    /// Peak resident memory, bytes (Linux VmHWM), if known.
+    /// Peak resident memory, bytes, if known: Linux VmHWM, or more where
+    /// the memory limit's own looks saw more (VmHWM misses mapped pages
+    /// dropped before the kernel updates it).
     pub peak_rss_bytes: Option<u64>,
     /// The memory limit the build kept to, bytes (`None`: no limit).
     pub memory_limit_bytes: Option<u64>,
