@@ -128,10 +128,13 @@ impl Globe {
     /// of degrees.
     #[inline]
     fn at_sample(&self, j: f64, i: f64) -> Option<([f64; 3], [f64; 2])> {
-        if j.fract() != 0.0 || i.fract() != 0.0 || j < 0.0 || i < 0.0 {
+        // Whole and not negative: the casts saturate, so anything else
+        // comes back changed (compared so, with no call to `trunc`).
+        let (jj, ii) = (j as usize, i as usize);
+        if jj as f64 != j || ii as f64 != i {
             return None;
         }
-        Some((*self.rows.get(i as usize)?, *self.cols.get(j as usize)?))
+        Some((*self.rows.get(ii)?, *self.cols.get(jj)?))
     }
 
     /// The east, up and south unit vectors at grid point (`j`, `i`), in

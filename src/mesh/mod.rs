@@ -61,7 +61,17 @@ pub struct ChunkMesh {
     pub locator_index: std::sync::OnceLock<crate::mesh::locate::LocatorIndex>,
     /// In the curved frame, each vertex's morph target as a world point:
     /// the parent's written (chord) surface there (empty in the flat frame).
-    pub parent_points: Vec<[f64; 3]>,
+    pub parent_points: Vec<ParentPoint>,
+}
+
+/// A curved-frame vertex's morph target.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParentPoint {
+    /// The parent's written surface at the vertex, world metres.
+    pub at: [f64; 3],
+    /// The parent has this vertex too: `at` is the vertex's own world
+    /// position, worked out once for both.
+    pub shared: bool,
 }
 
 impl ChunkMesh {

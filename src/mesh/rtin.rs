@@ -38,7 +38,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use rayon::prelude::*;
 
 use super::grid::Grid;
-use super::{ChunkMesh, MeshError, MeshVertex};
+use super::{ChunkMesh, MeshError, MeshVertex, ParentPoint};
 use crate::geodesy::Globe;
 use crate::quadtree::{ChunkKey, ChunkTree, Span};
 use crate::store::{self, Big, Memory};
@@ -467,13 +467,7 @@ impl Rtin {
         for (t, ph) in square_triangles(from.0, from.1, from.2) {
             match globe {
                 None => m.descend(t, ph.map(|p| vertex_height(grid, p))),
-                Some((g, _)) => m.descend(
-                    t,
-                    ph.map(|p| {
-                        let h = vertex_height(grid, p);
-                        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h) }
-                    }),
-                ),
+                Some(_) => m.descend(t, ph.map(|p| OnGlobe::own(globe, p, vertex_height(grid, p)))),
             }
         }
         if m.vertices.len() > max_vertices {
@@ -890,7 +884,7 @@ struct Mesher<'a> {
     /// The curved frame and the grid spacing (metres), if it is written in it.
     globe: Option<(&'a Globe, [f64; 2])>,
     /// Per vertex, its parent-surface point (the curved frame only).
-    parent_points: Vec<[f64; 3]>,
+    parent_points: Vec<ParentPoint>,
     /// The largest error bound plus sag of a written triangle (the curved
     /// frame only).
     curved_error_m: f64,
@@ -907,7 +901,7 @@ trait ParentSurface: Copy {
     /// The middle of a parent edge: the parent's surface is linear along it.
     fn middle(a: Self, b: Self) -> Self;
     fn height(&self) -> f64;
-    fn point(&self) -> Option<[f64; 3]>;
+    fn point(&self) -> Option<ParentPoint>;
 }
 
 impl ParentSurface for f64 {
@@ -924,7 +918,7 @@ impl ParentSurface for f64 {
         *self
     }
     #[inline]
-    fn point(&self) -> Option<[f64; 3]> {
+    fn point(&self) -> Option<ParentPoint> {
         None
     }
 }
@@ -936,21 +930,23 @@ impl ParentSurface for f64 {
 struct OnGlobe {
     h: f64,
     p: [f64; 3],
+    /// A vertex of the parent (not the middle of its edge).
+    shared: bool,
 }
 
 impl ParentSurface for OnGlobe {
     fn own(globe: Option<(&Globe, [f64; 2])>, p: P, h: f64) -> OnGlobe {
         let (g, _) = globe.expect("the curved frame carries its globe");
-        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h) }
+        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h), shared: true }
     }
     fn middle(a: OnGlobe, b: OnGlobe) -> OnGlobe {
-        OnGlobe { h: (a.h + b.h) / 2.0, p: [0, 1, 2].map(|k| (a.p[k] + b.p[k]) / 2.0) }
+        OnGlobe { h: (a.h + b.h) / 2.0, p: [0, 1, 2].map(|k| (a.p[k] + b.p[k]) / 2.0), shared: false }
     }
     fn height(&self) -> f64 {
         self.h
     }
-    fn point(&self) -> Option<[f64; 3]> {
-        Some(self.p)
+    fn point(&self) -> Option<ParentPoint> {
+        Some(ParentPoint { at: self.p, shared: self.shared })
     }
 }
 

@@ -15,7 +15,7 @@ use crate::geodesy::Globe;
 use crate::mesh::decimate::{ChunkSpec, DividingLines, build_chunk};
 use crate::mesh::grid::Grid;
 use crate::mesh::skirt::{Hang, build_skirt};
-use crate::mesh::{ChunkMesh, MeshVertex, dem_normal};
+use crate::mesh::{ChunkMesh, MeshVertex, ParentPoint, dem_normal};
 use crate::output::gltf::encode_glb;
 use crate::output::tileset::{TileRecord, tile_uri};
 use crate::quadtree::ChunkKey;
@@ -141,7 +141,7 @@ impl Run<'_> {
 /// micro-benchmark (`benches/stages.rs`).
 pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64, globe: Option<&Globe>) -> Chunk {
     let (used, indices) = written(mesh);
-    let targets: Vec<[f64; 3]> = match globe {
+    let targets: Vec<ParentPoint> = match globe {
         Some(_) => used.iter().map(|&(_, k)| mesh.parent_points[k]).collect(),
         None => Vec::new(),
     };
@@ -191,7 +191,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
 /// [`build_skirt`] gives them) take their surface vertex's place, normal
 /// and delta, bottoms its normal and delta 0, as in the flat frame; a
 /// bottom hangs along the normal.
-fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], hangs: &[Hang], globe: &Globe, spacing: [f64; 2]) {
+fn bend(chunk: &mut Chunk, targets: &[ParentPoint], hangs: &[Hang], globe: &Globe, spacing: [f64; 2]) {
     let surface = &mut chunk.surface;
     let turn = |n: [f32; 3], axes: [[f64; 3]; 3]| -> [f32; 3] {
         let v = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
@@ -200,15 +200,19 @@ fn bend(chunk: &mut Chunk, targets: &[[f64; 3]], hangs: &[Hang], globe: &Globe, 
     };
     let mut deltas = Vec::with_capacity(surface.positions.len());
     for (k, &(j, i)) in chunk.surface_grid.iter().enumerate() {
-        let p = globe.world(j, i, surface.positions[k][1]);
+        // A vertex the parent has too was placed once, for both.
+        let target = targets[k];
+        let p = if target.shared { target.at } else { globe.world(j, i, surface.positions[k][1]) };
         surface.normals[k] = turn(surface.normals[k], globe.axes(j, i));
-        deltas.push([0, 1, 2].map(|a| targets[k][a] - p[a]));
+        deltas.push([0, 1, 2].map(|a| target.at[a] - p[a]));
         surface.positions[k] = p;
-        surface.plan_m.push([j * spacing[0], i * spacing[1]]);
     }
+    surface.plan_m = chunk.surface_grid.iter().map(|&(j, i)| [j * spacing[0], i * spacing[1]]).collect();
     surface.morph_dy = deltas.iter().map(|d| d[1]).collect();
     surface.morph_dxz = deltas.iter().map(|d| [d[0], d[2]]).collect();
     let skirt = &mut chunk.skirt;
+    skirt.plan_m.reserve(hangs.len());
+    skirt.morph_dxz.reserve(hangs.len());
     for (k, &Hang { surface: s, top }) in hangs.iter().enumerate() {
         let s = s as usize;
         // The same grid point and normal as its surface vertex: the same
