@@ -102,6 +102,12 @@ pub struct Config {
     /// error-bounded tree saves (`terrachunk bench --savings`); the output is
     /// as valid, only larger. Default false.
     pub complete_tree: bool,
+    /// Most tiles one index file holds. A tree with more has its subtrees
+    /// under one level written as external tilesets beside `tileset.json`
+    /// (3D Tiles 1.1; `tileset-L-x-y.json`), so that a client reads the
+    /// index a piece at a time. Range: 1..=16 777 216. Default
+    /// [`INDEX_TILES`].
+    pub index_tiles: usize,
     /// Widest a chunk's texture may be, in texels per side. Where a chunk
     /// would need more to keep T_g ≤ δ/τ_max, the cap wins and the build
     /// says so (the bound then does not hold for that level). Range:
@@ -186,6 +192,10 @@ pub enum Mesher {
     /// Greedy insertion TIN, nested in the parent's (`mesh::decimate`).
     Tin,
 }
+
+/// The default [`Config::index_tiles`]: an index file of 16 384 tiles is
+/// about 6 MB of JSON.
+pub const INDEX_TILES: usize = 16_384;
 
 /// The default [`Config::max_chunk_vertices`]: 65 535, what u16 indices
 /// hold, so every chunk stays small enough to cull and page finely. A dense
@@ -346,6 +356,7 @@ impl Default for Config {
             thin: Thin::Leaves,
             vertex_cache: None,
             complete_tree: false,
+            index_tiles: INDEX_TILES,
             max_texture_px: 512,
             texture_format: TextureFormat::Png,
             jpeg_quality: 85,
@@ -476,6 +487,9 @@ impl Config {
                 self.max_chunk_vertices.to_string(),
                 "must be within 65535..=16777215 vertices",
             );
+        }
+        if !(1..=16_777_216).contains(&self.index_tiles) {
+            return bad("index_tiles", self.index_tiles.to_string(), "must be within 1..=16777216 tiles");
         }
         if !(2..=16384).contains(&self.max_texture_px) {
             return bad("max_texture_px", self.max_texture_px.to_string(), "must be within 2..=16384 texels");

@@ -129,6 +129,10 @@ struct BuildArgs {
     /// Widest texture tile, texels.
     #[arg(long)]
     max_texture_px: Option<u32>,
+    /// Most tiles one index file holds; a larger tree's subtrees go into
+    /// external tilesets beside tileset.json [default: 16384].
+    #[arg(long)]
+    index_tiles: Option<usize>,
     /// Also write a tangent-space normal map from the full-resolution DEM.
     #[arg(long)]
     normal_map: bool,
@@ -363,7 +367,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Merge { manifest } => match shard::merge(&manifest) {
             Ok(m) => {
-                println!("{}: {} chunks, tileset.json {} bytes", m.out.display(), m.chunks, m.index_bytes);
+                println!(
+                    "{}: {} chunks, index {} bytes in {} file(s)",
+                    m.out.display(),
+                    m.chunks,
+                    m.index_bytes,
+                    m.index_files
+                );
                 Ok(ExitCode::SUCCESS)
             }
             Err(e) => {
@@ -432,6 +442,7 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
         texture_format,
         jpeg_quality,
         max_texture_px,
+        index_tiles,
         normal_map,
         leaf_cells,
         root_cells,
@@ -474,6 +485,9 @@ fn build_options(a: BuildArgs) -> Result<(BuildOptions, Option<PathBuf>), String
     }
     if let Some(v) = max_texture_px {
         cfg.max_texture_px = v;
+    }
+    if let Some(v) = index_tiles {
+        cfg.index_tiles = v;
     }
     cfg.normal_map |= normal_map;
     if leaf_cells.is_some() {

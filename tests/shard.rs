@@ -56,6 +56,31 @@ fn sharded_build_is_byte_identical_to_the_single_process_build() {
     verified(&tmp.path().join("sharded-3"));
 }
 
+/// With the index split into external tilesets, the merge splits it as the
+/// whole build does: the same files, byte for byte.
+#[test]
+fn a_sharded_build_splits_its_index_as_the_single_process_build_does() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("mount_st_helens_30m.tif");
+    let split = |out: &Path, threads: usize| {
+        let mut o = opts(&dem, out, threads);
+        o.config.index_tiles = 8;
+        o
+    };
+    let whole = tmp.path().join("whole");
+    let report = build(&split(&whole, 2)).unwrap();
+    assert!(report.index_files > 2, "{} index files", report.index_files);
+    let out = tmp.path().join("sharded");
+    let manifest = shard::plan(&split(&out, 1), 3, &tmp.path().join("work")).unwrap();
+    for job in 0..shard::read_manifest(&manifest).unwrap().jobs.len() {
+        shard::run_job(&manifest, job, Some(1)).unwrap();
+    }
+    let merged = shard::merge(&manifest).unwrap();
+    assert_eq!(merged.index_files, report.index_files);
+    assert!(all_files(&whole) == all_files(&out), "the sharded index differs from the whole build's");
+    verified(&out);
+}
+
 /// The tree's top is a forest (`root_cells`) and the DEM has a corner of
 /// nodata: a shard holding only nodata writes nothing, and the others still
 /// give the single-process bytes.

@@ -423,3 +423,107 @@ fn the_tileset_fuzz_harness_verifies_the_template_and_survives_damage() {
     }
     harness::verify_tileset_bytes(&all);
 }
+
+/// [`built`] with at most five tiles an index file: `tileset.json` over
+/// external tilesets.
+fn built_split() -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "crop.asc", 129, 129, ground);
+    let out = tmp.path().join("out");
+    let config = Config { max_error_m: 0.5, leaf_cells: Some(32), index_tiles: 5, ..Config::default() };
+    let mut opts = with_config(&dem, &out, config);
+    opts.texture = TextureSource::None;
+    build(&opts).unwrap();
+    (tmp, out)
+}
+
+/// The external tilesets beside `tileset.json`, by name.
+fn external_files(out: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.starts_with("tileset-") && n.ends_with(".json"))
+        .collect();
+    names.sort();
+    names
+}
+
+/// Tiles with chunk content in a parsed index file.
+fn chunk_tiles(tile: &Value) -> usize {
+    let own = usize::from(tile["content"]["uri"].as_str().is_some_and(|u| u.ends_with(".glb")));
+    own + tile["children"].as_array().map_or(0, |k| k.iter().map(chunk_tiles).sum())
+}
+
+#[test]
+fn an_index_over_index_tiles_is_external_tilesets_that_read_back_as_the_one_file_index() {
+    let (_a, one, _) = built(Compress::None);
+    let (_b, split) = built_split();
+    assert!(external_files(&one).is_empty(), "21 tiles fit the default index file");
+    let names = external_files(&split);
+    assert_eq!(names, ["tileset-1-0-0.json", "tileset-1-0-1.json", "tileset-1-1-0.json", "tileset-1-1-1.json"]);
+    for name in &names {
+        let ext: Value = serde_json::from_slice(&std::fs::read(split.join(name)).unwrap()).unwrap();
+        assert_eq!(ext["asset"]["version"], "1.1");
+        let n = chunk_tiles(&ext["root"]);
+        assert!((1..=5).contains(&n), "{name}: {n} tiles");
+        // The referring tile's error is the parent's δ, the root's its own.
+        assert!(ext["geometricError"].as_f64() > ext["root"]["geometricError"].as_f64(), "{name}");
+    }
+    // The root index refers to them from childless tiles, and holds level 0.
+    let root = tileset(&split);
+    assert_eq!(chunk_tiles(&root["root"]), 1);
+    for kid in root["root"]["children"].as_array().unwrap() {
+        assert!(kid["children"].is_null() && kid["content"]["uri"].as_str().unwrap().ends_with(".json"));
+    }
+    // Read back whole, the same index as one file; the chunks are the same bytes.
+    let read = terrachunk::verify::read_tileset(&split).unwrap();
+    assert!(read == tileset(&one), "the external tilesets read back as another tree");
+    let glbs = |dir: &Path| {
+        crate::common::all_files(dir)
+            .into_iter()
+            .filter(|(p, _)| p.extension().is_some_and(|e| e == "glb"))
+            .collect::<Vec<_>>()
+    };
+    assert!(glbs(&one) == glbs(&split), "the chunks differ with the index split");
+    let r = report(&split);
+    assert!(r.failures.is_empty(), "{:#?}", r.failures);
+}
+
+#[test]
+fn verify_rejects_an_external_tileset_missing_moved_or_under_a_tile_with_children() {
+    let (_t, out) = built_split();
+    let keep = |name: &str| std::fs::read(out.join(name)).unwrap();
+    let (ts, ext) = (keep("tileset.json"), keep("tileset-1-1-0.json"));
+    let restore = || {
+        std::fs::write(out.join("tileset.json"), &ts).unwrap();
+        std::fs::write(out.join("tileset-1-1-0.json"), &ext).unwrap();
+    };
+    std::fs::remove_file(out.join("tileset-1-1-0.json")).unwrap();
+    fails_naming(&out, "tileset-1-1-0.json", "cannot read");
+    restore();
+    // Its root's box moved out of the referring tile's.
+    let mut moved: Value = serde_json::from_slice(&ext).unwrap();
+    let b = &mut moved["root"]["boundingVolume"]["box"];
+    b[0] = json!(b[0].as_f64().unwrap() + 1e4);
+    std::fs::write(out.join("tileset-1-1-0.json"), serde_json::to_vec(&moved).unwrap()).unwrap();
+    fails_naming(&out, "tileset-1-1-0.json", "not inside the referring tile's");
+    restore();
+    // A referring tile with children, and one naming a file in a folder.
+    let mut index: Value = serde_json::from_slice(&ts).unwrap();
+    let kids = index["root"]["children"].clone();
+    index["root"]["children"][0]["children"] = json!([kids[1].clone()]);
+    write_json(&out, &index);
+    fails_naming(&out, "tileset-1-0-0.json", "has children");
+    let mut index: Value = serde_json::from_slice(&ts).unwrap();
+    index["root"]["children"][2]["content"]["uri"] = json!("tiles/tileset-1-1-0.json");
+    write_json(&out, &index);
+    fails_naming(&out, "tiles/tileset-1-1-0.json", "beside tileset.json");
+    // Referred to twice.
+    let mut index: Value = serde_json::from_slice(&ts).unwrap();
+    index["root"]["children"][3] = kids[0].clone();
+    write_json(&out, &index);
+    fails_naming(&out, "tileset-1-0-0.json", "not the first to refer to it");
+    restore();
+    let r = report(&out);
+    assert!(r.failures.is_empty(), "{:#?}", r.failures);
+}

@@ -183,8 +183,8 @@ pub struct LeafMeasure {
 pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchError> {
     let ts_path = dir.join("tileset.json");
     let bad = |what: String| BenchError::Input { path: ts_path.clone(), what };
-    let text = std::fs::read_to_string(&ts_path).map_err(|source| BenchError::Io { path: ts_path.clone(), source })?;
-    let ts: Value = serde_json::from_str(&text).map_err(|e| bad(format!("bad JSON: {e}")))?;
+    // With its external tilesets in place.
+    let ts: Value = crate::verify::read_tileset(dir).map_err(|e| bad(e.to_string()))?;
     let extras = &ts["extras"]["terrachunk"];
     let grid = [&extras["grid"]["width"], &extras["grid"]["height"]].map(|v| v.as_u64().unwrap_or(0) as usize);
     if grid != [hf.width, hf.height] {

@@ -69,7 +69,7 @@ pub struct Row {
     pub leaf_triangles: Option<usize>,
     /// Surface vertices of all levels.
     pub vertices: Option<usize>,
-    /// Bytes written (.glb files and tileset.json).
+    /// Bytes written (.glb files and index files).
     pub bytes: Option<u64>,
     /// bytes / samples.
     pub bytes_per_sample: Option<f64>,

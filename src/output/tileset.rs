@@ -193,13 +193,21 @@ pub fn tiles_box(min: [f64; 3], max: [f64; 3]) -> [f64; 12] {
 }
 
 /// The `tileset.json` document over `records` (sorted by key), to
-/// serialize. It is written as it is walked, never held as a JSON tree: a
-/// tree of 45 000 tiles took 250 MB, more than the grid itself. Keys come
-/// in sorted order, as a `serde_json::Value` holds them.
-pub fn tileset_json<'a>(tree: &'a ChunkTree, records: &'a [TileRecord], extras: &'a TilesetExtras) -> TilesetDoc<'a> {
-    // Each tile's box holds its children's: bottom-up over the records,
-    // deepest level first.
+/// serialize, and the external tilesets it refers to
+/// ([`TilesetDoc::external`]) where it has more than `max_tiles` tiles. It
+/// is written as it is walked, never held as a JSON tree: a tree of 45 000
+/// tiles took 250 MB, more than the grid itself. Keys come in sorted order,
+/// as a `serde_json::Value` holds them.
+pub fn tileset_json<'a>(
+    tree: &'a ChunkTree,
+    records: &'a [TileRecord],
+    extras: &'a TilesetExtras,
+    max_tiles: usize,
+) -> TilesetDoc<'a> {
+    // Each tile's box holds its children's, and its count theirs: bottom-up
+    // over the records, deepest level first.
     let mut boxes: Vec<([f64; 3], [f64; 3])> = records.iter().map(|r| (r.min, r.max)).collect();
+    let mut counts = vec![1usize; records.len()];
     let mut order: Vec<usize> = (0..records.len()).collect();
     order.sort_by_key(|&i| std::cmp::Reverse(records[i].key.level));
     for i in order {
@@ -209,9 +217,25 @@ pub fn tileset_json<'a>(tree: &'a ChunkTree, records: &'a [TileRecord], extras: 
             boxes[p].0[a] = boxes[p].0[a].min(lo[a]);
             boxes[p].1[a] = boxes[p].1[a].max(hi[a]);
         }
+        counts[p] += counts[i];
     }
     let tops: Vec<usize> = tree.roots().into_iter().filter_map(|k| find(records, k)).collect();
-    TilesetDoc { tree, records, extras, boxes, tops }
+    let split = split_level(records, &counts, max_tiles);
+    TilesetDoc { tree, records, extras, boxes, tops, split }
+}
+
+/// The shallowest level whose every tile heads a subtree of at most
+/// `max_tiles` tiles (`counts`, per record), where the whole tree has more:
+/// each of its tiles then goes into an external tileset of its own, and
+/// `tileset.json` keeps the levels above. The rule reads the tree alone, so
+/// a sharded build's merge splits the index as the whole build does.
+fn split_level(records: &[TileRecord], counts: &[usize], max_tiles: usize) -> Option<u32> {
+    if records.len() <= max_tiles {
+        return None;
+    }
+    let deepest = records.iter().map(|r| r.key.level).max()?;
+    (1..=deepest)
+        .find(|&level| records.iter().zip(counts).filter(|(r, _)| r.key.level == level).all(|(_, &n)| n <= max_tiles))
 }
 
 fn find(records: &[TileRecord], k: ChunkKey) -> Option<usize> {
@@ -227,6 +251,51 @@ pub struct TilesetDoc<'a> {
     boxes: Vec<([f64; 3], [f64; 3])>,
     /// The records of the top-level chunks.
     tops: Vec<usize>,
+    /// The level whose tiles head external tilesets ([`split_level`]).
+    split: Option<u32>,
+}
+
+/// Writes `doc` as `dir/tileset.json` and its external tilesets beside it,
+/// compact (a client reads a whole index file before it draws anything,
+/// and indentation was four fifths of it; `jq .` reads them); returns the
+/// bytes written.
+pub fn write_index(dir: &Path, doc: &TilesetDoc) -> Result<u64, (PathBuf, std::io::Error)> {
+    let mut written = 0u64;
+    let mut write = |name: &str, bytes: Vec<u8>| {
+        let path = dir.join(name);
+        std::fs::write(&path, &bytes).map_err(|e| (path, e))?;
+        written += bytes.len() as u64;
+        Ok(())
+    };
+    for (uri, ext) in doc.external() {
+        write(&uri, serde_json::to_vec(&ext).expect("JSON of plain values"))?;
+    }
+    write("tileset.json", serde_json::to_vec(doc).expect("JSON of plain values"))?;
+    Ok(written)
+}
+
+/// Where the external tileset headed by chunk `k` lives, relative to the
+/// tileset root: beside `tileset.json`, so that the content URIs inside it
+/// (relative to it, as 3D Tiles reads them) are the same as in the root.
+pub fn external_uri(k: ChunkKey) -> String {
+    format!("tileset-{}-{}-{}.json", k.level, k.x, k.y)
+}
+
+/// An external tileset: the subtree under one chunk.
+pub struct ExternalDoc<'d, 'a> {
+    doc: &'d TilesetDoc<'a>,
+    i: usize,
+}
+
+impl Serialize for ExternalDoc<'_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(Some(3))?;
+        m.serialize_entry("asset", &json!({"version": "1.1", "generator": self.doc.extras.generator}))?;
+        m.serialize_entry("geometricError", &self.doc.reference_error(self.i))?;
+        m.serialize_entry("root", &Tile { doc: self.doc, i: self.i, transform: None, heads_file: true })?;
+        m.end()
+    }
 }
 
 impl TilesetDoc<'_> {
@@ -244,6 +313,28 @@ impl TilesetDoc<'_> {
 
     fn children(&self, i: usize) -> Vec<usize> {
         self.tree.children(self.records[i].key).into_iter().filter_map(|c| find(self.records, c)).collect()
+    }
+
+    /// The external tilesets `tileset.json` refers to, in key order: their
+    /// URIs ([`external_uri`]) and documents.
+    pub fn external(&self) -> Vec<(String, ExternalDoc<'_, '_>)> {
+        let Some(level) = self.split else { return Vec::new() };
+        (0..self.records.len())
+            .filter(|&i| self.records[i].key.level == level)
+            .map(|i| (external_uri(self.records[i].key), ExternalDoc { doc: self, i }))
+            .collect()
+    }
+
+    /// The geometric error of the tile that refers to the external tileset
+    /// headed by record `i`, and of that tileset: its parent's δ, so that a
+    /// client that judges the reference at all refines into it exactly
+    /// where it refines the parent (the split level is never a top level).
+    fn reference_error(&self, i: usize) -> f64 {
+        let key = self.records[i].key;
+        self.tree
+            .parent(key)
+            .and_then(|p| find(self.records, p))
+            .map_or(self.records[i].delta_m, |p| self.records[p].delta_m)
     }
 }
 
@@ -264,7 +355,7 @@ impl Serialize for TilesetDoc<'_> {
         // diagonal keeps it drawn until the whole tileset is smaller than the
         // bound in pixels.
         match self.tops[..] {
-            [top] => m.serialize_entry("root", &Tile { doc: self, i: top, transform })?,
+            [top] => m.serialize_entry("root", &Tile { doc: self, i: top, transform, heads_file: true })?,
             _ => m.serialize_entry(
                 "root",
                 &Group { doc: self, lo, hi, error: whole.max(2.0 * self.tree.delta_m[0]), transform },
@@ -274,11 +365,14 @@ impl Serialize for TilesetDoc<'_> {
     }
 }
 
-/// One tile and, nested, its descendants.
+/// One tile and, nested, its descendants; or, where it heads an external
+/// tileset and is not that file's root, the tile that refers to it.
 struct Tile<'d, 'a> {
     doc: &'d TilesetDoc<'a>,
     i: usize,
     transform: Option<[f64; 16]>,
+    /// The root of the file being written.
+    heads_file: bool,
 }
 
 impl Serialize for Tile<'_, '_> {
@@ -286,11 +380,19 @@ impl Serialize for Tile<'_, '_> {
         use serde::ser::SerializeMap;
         let r = &self.doc.records[self.i];
         let (lo, hi) = self.doc.boxes[self.i];
-        let children = self.doc.children(self.i);
         let mut m = s.serialize_map(None)?;
         m.serialize_entry("boundingVolume", &json!({"box": tiles_box(lo, hi)}))?;
+        if !self.heads_file && self.doc.split == Some(r.key.level) {
+            // 3D Tiles: a tile whose content is a tileset has no children.
+            m.serialize_entry("content", &json!({"uri": external_uri(r.key)}))?;
+            m.serialize_entry("geometricError", &self.doc.reference_error(self.i))?;
+            m.serialize_entry("refine", "REPLACE")?;
+            return m.end();
+        }
+        let children = self.doc.children(self.i);
         if !children.is_empty() {
-            let kids: Vec<Tile> = children.into_iter().map(|i| Tile { doc: self.doc, i, transform: None }).collect();
+            let kids: Vec<Tile> =
+                children.into_iter().map(|i| Tile { doc: self.doc, i, transform: None, heads_file: false }).collect();
             m.serialize_entry("children", &kids)?;
         }
         m.serialize_entry("content", &json!({"uri": tile_uri(r.key)}))?;
@@ -320,7 +422,8 @@ impl Serialize for Group<'_, '_> {
         use serde::ser::SerializeMap;
         let mut m = s.serialize_map(None)?;
         m.serialize_entry("boundingVolume", &json!({"box": tiles_box(self.lo, self.hi)}))?;
-        let tops: Vec<Tile> = self.doc.tops.iter().map(|&i| Tile { doc: self.doc, i, transform: None }).collect();
+        let tops: Vec<Tile> =
+            self.doc.tops.iter().map(|&i| Tile { doc: self.doc, i, transform: None, heads_file: false }).collect();
         m.serialize_entry("children", &tops)?;
         m.serialize_entry("geometricError", &self.error)?;
         m.serialize_entry("refine", "REPLACE")?;

@@ -26,7 +26,7 @@ use crate::heightfield::{Crs, Heightfield, void_fill_in};
 use crate::mesh::MeshError;
 use crate::mesh::grid::Grid;
 use crate::output::compress::QuantizeError;
-use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json};
+use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json, write_index};
 use crate::quadtree::ChunkTree;
 use crate::quadtree::estimate::{Planned, plan_tree};
 use crate::shard::{FixedPlan, PartBuilt, TreePart};
@@ -235,14 +235,11 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     report.not_placed = not_placed(&hf);
     report.flat_frame_error = extras.placement.as_ref().and_then(|p| p.flat_frame_error.clone());
     report.frame = extras.placement.as_ref().map_or(FrameKind::Flat, |p| p.frame);
-    let doc = tileset_json(&tree, &records, &extras);
-    // Compact: a client reads the whole index before it draws anything,
-    // and indentation was four fifths of it. `jq . tileset.json` reads it.
-    let bytes = serde_json::to_vec(&doc).expect("JSON of plain values");
-    let path = out.tmp().join("tileset.json");
-    std::fs::write(&path, &bytes).map_err(|source| BuildError::Io { path, source })?;
+    let doc = tileset_json(&tree, &records, &extras, cfg.index_tiles);
+    let index_bytes = write_index(out.tmp(), &doc).map_err(|(path, source)| BuildError::Io { path, source })?;
+    report.index_files = 1 + doc.external().len();
     out.commit()?;
-    report.bytes += bytes.len() as u64;
+    report.bytes += index_bytes;
     report.bytes_per_sample = report.bytes as f64 / report.samples as f64;
     report.threads = threads;
     report.seconds = StageTimes {

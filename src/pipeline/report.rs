@@ -89,6 +89,10 @@ pub struct Report {
     /// Bytes of whole-grid arrays kept in mapped scratch files, past the
     /// limit's share ([`crate::store`]); 0 when all fit in memory.
     pub scratch_bytes: u64,
+    /// Index files written: `tileset.json` and the external tilesets it
+    /// refers to (more than one where the tree has more than
+    /// `index_tiles` tiles).
+    pub index_files: usize,
     /// Threads used.
     pub threads: usize,
     /// Levels added at the bottom (same footprint, half the δ) so that the
@@ -404,6 +408,13 @@ impl std::fmt::Display for Summary<'_> {
         }
         let s = &r.seconds;
         writeln!(f, "{} bytes ({:.3} bytes per input sample) in {}", r.bytes, r.bytes_per_sample, out.display())?;
+        if r.index_files > 1 {
+            writeln!(
+                f,
+                "index: tileset.json and {} external tilesets beside it (more than index_tiles tiles in all)",
+                r.index_files - 1
+            )?;
+        }
         writeln!(
             f,
             "time: load {:.2} s, plan {:.2} s, texture source {:.2} s, chunks {:.2} s (mesh {:.2}, skirt+morph {:.2}, {}texture {:.2}, write {:.2} thread-s), index {:.2} s, total {:.2} s on {} threads",

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::config::Config;
-use crate::output::tileset::{TileRecord, TilesetExtras, tileset_json};
+use crate::output::tileset::{TileRecord, TilesetExtras, tileset_json, write_index};
 use crate::pipeline::{BuildError, BuildOptions, Report, build_part, plan_fixed};
 use crate::quadtree::{ChunkKey, ChunkTree};
 use crate::texture::TextureSource;
@@ -453,8 +453,10 @@ pub struct Merged {
     pub out: PathBuf,
     /// Chunks in it.
     pub chunks: usize,
-    /// Bytes of its `tileset.json`.
-    pub index_bytes: usize,
+    /// Bytes of its `tileset.json` and external tilesets.
+    pub index_bytes: u64,
+    /// How many index files: `tileset.json` and its external tilesets.
+    pub index_files: usize,
 }
 
 /// Writes the tileset of a finished sharded build: every job's chunks and
@@ -496,18 +498,16 @@ pub fn merge(manifest_path: &Path) -> Result<Merged, ShardError> {
         });
     }
     let tree = m.plan.tree(&m.config);
-    let doc = tileset_json(&tree, &records, &extras);
-    // Compact, as `build` writes it.
-    let bytes = serde_json::to_vec(&doc).expect("JSON of plain values");
+    let doc = tileset_json(&tree, &records, &extras, m.config.index_tiles);
     let tmp = temp_beside(&m.out);
     let _ = std::fs::remove_dir_all(&tmp);
-    let write = || -> Result<(), ShardError> {
+    let mut index_bytes = 0u64;
+    let mut write = || -> Result<(), ShardError> {
         for (dir, _) in &results {
             link_tree(&dir.join("tiles"), &tmp.join("tiles"))?;
         }
         std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-        let index = tmp.join("tileset.json");
-        std::fs::write(&index, &bytes).map_err(io(&index))?;
+        index_bytes = write_index(&tmp, &doc).map_err(|(path, e)| io(&path)(e))?;
         let marker = tmp.join(crate::pipeline::out_dir::MARKER);
         std::fs::write(&marker, crate::pipeline::out_dir::MARKER_TEXT).map_err(io(&marker))?;
         if m.out.exists() {
@@ -519,7 +519,7 @@ pub fn merge(manifest_path: &Path) -> Result<Merged, ShardError> {
         let _ = std::fs::remove_dir_all(&tmp);
         return Err(e);
     }
-    Ok(Merged { out: m.out.clone(), chunks: records.len(), index_bytes: bytes.len() })
+    Ok(Merged { out: m.out.clone(), chunks: records.len(), index_bytes, index_files: 1 + doc.external().len() })
 }
 
 /// `job-K`.

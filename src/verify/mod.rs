@@ -52,7 +52,8 @@ use serde_json::Value;
 
 pub use inspect::{Inspection, inspect};
 pub use read::{
-    ChunkFile, ChunkTexture, ImageEdges, MAX_INDEX_BYTES, MAX_TILE_BYTES, Prim, parse_chunk, read_chunk, read_tile,
+    ChunkFile, ChunkTexture, ImageEdges, MAX_INDEX_BYTES, MAX_TILE_BYTES, Prim, inline_external, parse_chunk,
+    read_chunk, read_tile, read_tileset,
 };
 
 use crate::dem::{self, LoadOptions};
@@ -174,7 +175,7 @@ pub fn verify_with_progress(
     progress: bool,
 ) -> Result<VerifyReport, VerifyError> {
     let (ts_path, text) = read::read_index(dir)?;
-    let ts: Value = serde_json::from_slice(&text).map_err(|e| file_err(&ts_path, format!("bad JSON: {e}")))?;
+    let mut ts: Value = serde_json::from_slice(&text).map_err(|e| file_err(&ts_path, format!("bad JSON: {e}")))?;
     let extras: TilesetExtras = serde_json::from_value(ts["extras"]["terrachunk"].clone())
         .map_err(|e| file_err(&ts_path, format!("extras.terrachunk: {e}")))?;
     let mut report = VerifyReport::default();
@@ -186,6 +187,12 @@ pub fn verify_with_progress(
     // Structure.
     if ts["asset"]["version"] != "1.1" {
         report.failures.push("tileset.json: asset.version is not \"1.1\"".into());
+    }
+    // The external tilesets, in place of the tiles that refer to them: a
+    // missing or damaged one is the tileset's fault, not the input's.
+    if let Err(e) = inline_external(dir, &mut ts) {
+        report.failures.push(e.to_string());
+        return Ok(report);
     }
     let index = Index::read(&ts["root"], &extras, &mut report.failures);
 

@@ -239,6 +239,91 @@ pub(crate) fn read_index(root: &Path) -> Result<(PathBuf, Vec<u8>), VerifyError>
     Ok((path, bytes))
 }
 
+/// `tileset.json` at `root` as one tree: parsed, with every external
+/// tileset it refers to read in its place ([`inline_external`]). What
+/// `verify`, the viewer and the benchmarks read.
+pub fn read_tileset(root: &Path) -> Result<Value, VerifyError> {
+    let (path, text) = read_index(root)?;
+    let mut ts: Value = serde_json::from_slice(&text).map_err(|e| file_err(&path, format!("bad JSON: {e}")))?;
+    inline_external(root, &mut ts)?;
+    Ok(ts)
+}
+
+/// Puts in place of each tile of `ts` whose content is an external
+/// tileset (a `.json` URI) that tileset's root, read as `tileset.json` is
+/// read: a file beside `tileset.json` (the only place terrachunk writes
+/// one, so that the content URIs inside it mean what they mean in the
+/// root), of 3D Tiles 1.1, whose root has no transform of its own, lies in
+/// the referring tile's box and has no larger geometric error; the
+/// referring tile has no children (3D Tiles), and no file is read twice.
+/// Returns how many were read.
+pub fn inline_external(root: &Path, ts: &mut Value) -> Result<usize, VerifyError> {
+    let index = root.join("tileset.json");
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<&mut Value> = vec![&mut ts["root"]];
+    while let Some(tile) = stack.pop() {
+        let external = tile["content"]["uri"].as_str().filter(|u| u.ends_with(".json")).map(str::to_owned);
+        let Some(uri) = external else {
+            if let Some(kids) = tile.get_mut("children").and_then(Value::as_array_mut) {
+                stack.extend(kids.iter_mut());
+            }
+            continue;
+        };
+        let path = root.join(&uri);
+        let refuse = |why: String| Err(file_err(&index, format!("the tile that refers to {uri:?} {why}")));
+        if uri.contains('/') || uri == "tileset.json" {
+            return refuse("names a file other than one beside tileset.json".into());
+        }
+        if !seen.insert(uri.clone()) {
+            return refuse("is not the first to refer to it".into());
+        }
+        if tile["children"].as_array().is_some_and(|k| !k.is_empty()) {
+            return refuse("has children (3D Tiles: a tile whose content is a tileset has none)".into());
+        }
+        let (at, len) = inside(root, &uri)?;
+        let bytes = read_bounded(&at, len, MAX_INDEX_BYTES, false)?;
+        let mut ext: Value = serde_json::from_slice(&bytes).map_err(|e| file_err(&path, format!("bad JSON: {e}")))?;
+        if ext["asset"]["version"] != "1.1" {
+            return Err(file_err(&path, "asset.version is not \"1.1\""));
+        }
+        let sub = ext["root"].take();
+        if !sub.is_object() {
+            return Err(file_err(&path, "has no root tile"));
+        }
+        if !sub["transform"].is_null() {
+            return Err(file_err(&path, "its root has a transform (readers take the referring tile's frame)"));
+        }
+        match (aabb(&tile["boundingVolume"]["box"]), aabb(&sub["boundingVolume"]["box"])) {
+            (Some(outer), Some(inner)) => {
+                let tol = |v: f64| 1e-6 * (1.0 + v.abs());
+                if (0..3)
+                    .any(|a| inner.0[a] < outer.0[a] - tol(outer.0[a]) || inner.1[a] > outer.1[a] + tol(outer.1[a]))
+                {
+                    return Err(file_err(&path, "its root's box is not inside the referring tile's"));
+                }
+            }
+            _ => return Err(file_err(&path, "its root or the referring tile has no 12-number boundingVolume.box")),
+        }
+        let (outer, inner) = (tile["geometricError"].as_f64(), sub["geometricError"].as_f64());
+        if !matches!((outer, inner), (Some(o), Some(i)) if i <= o) {
+            return Err(file_err(&path, "its root's geometricError is missing or larger than the referring tile's"));
+        }
+        *tile = sub;
+        stack.push(tile);
+    }
+    Ok(seen.len())
+}
+
+/// The axis-aligned extent of a 3D Tiles `box` (centre, three half-axes).
+fn aabb(b: &Value) -> Option<([f64; 3], [f64; 3])> {
+    let v: Vec<f64> = b.as_array()?.iter().map(Value::as_f64).collect::<Option<_>>()?;
+    if v.len() != 12 || v.iter().any(|x| !x.is_finite()) {
+        return None;
+    }
+    let half = [0, 1, 2].map(|a| v[3 + a].abs() + v[6 + a].abs() + v[9 + a].abs());
+    Some(([0, 1, 2].map(|a| v[a] - half[a]), [0, 1, 2].map(|a| v[a] + half[a])))
+}
+
 /// Reads one chunk file a user names (`inspect`): a regular file (a link
 /// to one is followed, since the user chose it), at most
 /// [`MAX_TILE_BYTES`], exactly as long as its GLB header says.

@@ -52,7 +52,17 @@ const failures = [];
 const fail = (m) => failures.push(m);
 
 // ---- What the tileset says, and where proj4js puts it -------------------
-const ts = JSON.parse(fs.readFileSync(path.join(tilesetDir, "tileset.json"), "utf8"));
+// With each external tileset (a tile whose content is a .json beside
+// tileset.json) read in place of the tile that refers to it; Cesium fetches
+// them itself.
+const readJson = (name) => JSON.parse(fs.readFileSync(path.join(tilesetDir, name), "utf8"));
+const inline = (t) => {
+  if (t.content?.uri?.endsWith(".json")) return inline(readJson(t.content.uri).root);
+  if (t.children) t.children = t.children.map(inline);
+  return t;
+};
+const ts = readJson("tileset.json");
+ts.root = inline(ts.root);
 const ex = ts.extras.terrachunk;
 const deepest = Math.max(...allTiles(ts.root).map((t) => t.extras.terrachunk.level));
 
@@ -123,6 +133,18 @@ const target = allTiles(ts.root)
   .map((t) => [Math.hypot(t.boundingVolume.box[0] - cx, t.boundingVolume.box[1] - cy), t.extras.terrachunk])
   .sort((a, b) => a[0] - b[0])[0][1];
 const targetKey = `${target.level}/${target.x}/${target.y}`;
+// The chunks from the top down to the target.
+const keyOf = (t) => t.extras?.terrachunk && `${t.extras.terrachunk.level}/${t.extras.terrachunk.x}/${t.extras.terrachunk.y}`;
+function chainTo(t, path = []) {
+  const here = keyOf(t) ? [...path, keyOf(t)] : path;
+  if (keyOf(t) === targetKey) return here;
+  for (const c of t.children ?? []) {
+    const found = chainTo(c, here);
+    if (found) return found;
+  }
+  return null;
+}
+const targetChain = chainTo(ts.root);
 
 // The glTF extensions the target tile requires (KHR_mesh_quantization and
 // EXT_ or KHR_meshopt_compression with --compress): what Cesium had to decode.
@@ -244,8 +266,13 @@ try {
   }
   if (shot) await page.screenshot({ path: shot });
 
-  close = await page.evaluate((k) => window.tc.closeTo(k), targetKey);
-  await settle("close view");
+  // Down the chain, one external tileset at a time.
+  for (let step = 0; step <= targetChain.length; step++) {
+    close = await page.evaluate((c) => window.tc.closeTo(c), targetChain);
+    await settle(close.reached ? "close view" : `close to ${close.at}`);
+    if (close.reached) break;
+  }
+  if (!close.reached) fail(`the camera never reached ${targetKey}: Cesium has no deeper tile of its chain than ${close.at}`);
   report = await page.evaluate(() => window.tc.report());
   report.farVisibleByLevel = far.visibleByLevel;
   const heights = await page.evaluate((pts) => window.tc.heightsAt(pts), samples.map((s) => s.lonLat));

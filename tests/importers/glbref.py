@@ -235,12 +235,29 @@ def quantum(chunk):
     return float(max(step[0], step[2])), float(step[1])
 
 
+def load_tileset(tileset_dir):
+    """tileset.json with each external tileset (a tile whose content is a
+    .json beside it) read in place of the tile that refers to it."""
+
+    def inline(t):
+        uri = (t.get("content") or {}).get("uri", "")
+        if uri.endswith(".json"):
+            return inline(json.load(open(f"{tileset_dir}/{uri}"))["root"])
+        if "children" in t:
+            t["children"] = [inline(c) for c in t["children"]]
+        return t
+
+    ts = json.load(open(f"{tileset_dir}/tileset.json"))
+    ts["root"] = inline(ts["root"])
+    return ts
+
+
 def pick_chunks(tileset_dir):
     """The chunks the checks import: the root, a skirted mid-level chunk and a
     leaf at the deepest level (each with its parent, for the morph check),
     as (label, key, parent key or None). Deterministic: the first in key
     order that fits."""
-    ts = json.load(open(f"{tileset_dir}/tileset.json"))
+    ts = load_tileset(tileset_dir)
     tiles, parent = {}, {}
 
     def walk(t, up):

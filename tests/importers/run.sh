@@ -14,7 +14,9 @@
 # generated colour map and skirted, so both placement paths (projected and
 # geographic) reach CesiumJS, and Mount St Helens again at 0.25 m in two
 # levels with --max-chunk-vertices 1048575, whose root passes 65 535
-# vertices and takes u32 indices. --compress is passed to `terrachunk build`
+# vertices and takes u32 indices. Dallas–Fort Worth is built with
+# --index-tiles 8, so its index is tileset.json over external tilesets
+# and every checker reads them (CesiumJS fetches them itself). --compress is passed to `terrachunk build`
 # (default none: not passed at all, so this runs on a binary that predates
 # the option); --bin defaults to the debug binary `cargo test` builds;
 # --screenshots writes the first fixture's blender_chunk.png and cesium.png
@@ -47,7 +49,7 @@ if [ ${#dems[@]} -eq 0 ]; then
   # whose root holds over 65 535 vertices and so is written with u32
   # indices (max_chunk_vertices); the run checks that it is.
   dems=(fixtures/mount_st_helens_30m.tif fixtures/dfw_texas_srtm3.tif fixtures/mount_st_helens_30m.tif)
-  extra=("" "" "--max-error 0.25 --leaf-cells 256 --max-chunk-vertices 1048575")
+  extra=("" "--index-tiles 8" "--max-error 0.25 --leaf-cells 256 --max-chunk-vertices 1048575")
 fi
 
 t0=$SECONDS
@@ -92,7 +94,11 @@ for dem in "${dems[@]}"; do
     continue
   fi
   stamp "built $dem (compress $compress${extra[$n]:+, ${extra[$n]}}) with $bin"
-  if [ -n "${extra[$n]:-}" ]; then
+  if [[ "${extra[$n]:-}" == *--index-tiles* ]] && ! compgen -G "$out/tileset-*.json" >/dev/null; then
+    stamp "index of $dem not split into external tilesets FAILED"
+    status=1
+  fi
+  if [[ "${extra[$n]:-}" == *--max-chunk-vertices* ]]; then
     run "u32 indices ($dem)" "$work/venv/bin/python" "$here/glbref.py" --expect-u32-root "$out"
   fi
   dir="$shots"

@@ -41,9 +41,8 @@ impl Tileset {
     /// Reads `DIR/tileset.json`.
     pub fn open(dir: &Path) -> Result<Self> {
         let path = dir.join("tileset.json");
-        let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-        let json: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        // With its external tilesets in place, read as `verify` reads them.
+        let json = terrachunk::verify::read_tileset(dir)?;
         let tree = LodTree::from_tileset_json(&json).with_context(|| path.display().to_string())?;
         let ex = &json["extras"]["terrachunk"];
         let grid =
@@ -570,6 +569,37 @@ mod tests {
         })
         .unwrap();
         dir
+    }
+
+    /// A tileset whose index is split into external tilesets opens as the
+    /// same tree as with one index file.
+    #[test]
+    fn external_tilesets_open_as_the_one_file_tree() {
+        let tmp = tempfile::tempdir().unwrap();
+        let one = kattegat_tileset(tmp.path());
+        let split = tmp.path().join("split");
+        let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/kattegat_crop_u8.png");
+        build(&BuildOptions {
+            inputs: vec![dem],
+            out: split.clone(),
+            force: false,
+            config: Config { max_error_m: 0.5, frame: Frame::Flat, index_tiles: 4, ..Config::default() },
+            texture: TextureSource::None,
+            progress: false,
+            geoid: None,
+        })
+        .unwrap();
+        let external = std::fs::read_dir(&split)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .find(|n| n.starts_with("tileset-"))
+            .expect("the index was not split");
+        let (a, b) = (Tileset::open(&one).unwrap(), Tileset::open(&split).unwrap());
+        assert!(a.tree.nodes.len() > 4);
+        assert_eq!(a.tree, b.tree);
+        std::fs::remove_file(split.join(&external)).unwrap();
+        let e = format!("{:#}", Tileset::open(&split).err().expect("opened without an external tileset"));
+        assert!(e.contains(&external), "{e}");
     }
 
     /// A damaged chunk whose triangles index past its vertices is an error
