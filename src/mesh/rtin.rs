@@ -632,10 +632,15 @@ fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
     Scan { error, valid }
 }
 
-/// Steps (splits, or rows of a scan) between looks at the memory limit:
-/// a coarse chunk of a large grid touches pages of its square faster than
-/// the limit's governor thread wakes.
-pub(crate) const RELIEF_STEPS: u32 = 4096;
+/// Steps (splits, vertices, or rows of a scan) between looks at the memory
+/// limit in a chunk at least [`RELIEF_SIDE`] cells wide: a coarse chunk of
+/// a large grid touches pages all over its square (each fault maps the
+/// pages around it too) faster than the limit's governor thread wakes.
+pub(crate) const RELIEF_STEPS: u32 = 512;
+
+/// The narrowest chunk, cells, whose passes look at the memory limit
+/// themselves; a narrower one touches too few rows to outrun the governor.
+pub(crate) const RELIEF_SIDE: u32 = 2048;
 
 /// The bottom-up pass's state: the grid and the errors found so far.
 struct Field<'g> {
@@ -983,7 +988,7 @@ impl Mesher<'_> {
             }
         };
         self.splits += 1;
-        if self.splits.is_multiple_of(RELIEF_STEPS) {
+        if self.side >= RELIEF_SIDE && self.splits.is_multiple_of(RELIEF_STEPS) {
             self.grid.relieve();
         }
         let [k0, k1] = t.children(m);

@@ -141,6 +141,8 @@ impl Run<'_> {
 /// micro-benchmark (`benches/stages.rs`).
 pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64, globe: Option<&Globe>) -> Chunk {
     let (used, indices) = written(mesh);
+    let ((x0, x1), (z0, z1)) = mesh.footprint;
+    let coarse = (x1 - x0).max(z1 - z0) >= crate::mesh::rtin::RELIEF_SIDE;
     let targets: Vec<ParentPoint> = match globe {
         Some(_) => used.iter().map(|&(_, k)| mesh.parent_points[k]).collect(),
         None => Vec::new(),
@@ -153,7 +155,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
             .enumerate()
             .map(|(k, v)| {
                 // A coarse chunk's vertices span much of the grid, a few pages each.
-                if (k as u32).is_multiple_of(crate::mesh::rtin::RELIEF_STEPS) {
+                if coarse && (k as u32).is_multiple_of(crate::mesh::rtin::RELIEF_STEPS) {
                     grid.relieve();
                 }
                 dem_normal(grid, spacing, v.x, v.z)
