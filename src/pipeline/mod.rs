@@ -250,9 +250,7 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
         index: t_idx.elapsed().as_secs_f64(),
         total: t0.elapsed().as_secs_f64(),
     };
-    report.peak_rss_bytes = peak_rss().max(memory.as_ref().map(Memory::most_resident_bytes).filter(|&b| b > 0));
-    report.memory_limit_bytes = memory.as_ref().map(Memory::limit);
-    report.scratch_bytes = memory.as_ref().map_or(0, Memory::mapped_bytes);
+    report.record_memory(memory.as_ref());
     Ok(report)
 }
 
@@ -449,9 +447,7 @@ pub fn build_part(opts: &BuildOptions, plan: &FixedPlan, part: &TreePart, dir: &
         let (mut report, records, texture) =
             schedule::build_levels(&hf, &grid, &tree, colour.as_ref(), opts, target, meshing)?;
         report.threads = threads;
-        report.peak_rss_bytes = peak_rss().max(memory.map(Memory::most_resident_bytes).filter(|&b| b > 0));
-        report.memory_limit_bytes = memory.map(Memory::limit);
-        report.scratch_bytes = memory.map_or(0, Memory::mapped_bytes);
+        report.record_memory(memory);
         let mut extras = tileset_extras(&hf, opts, &tree);
         extras.source =
             SourceFile::of_inputs(&opts.inputs).map_err(|(path, source)| BuildError::Io { path, source })?;

@@ -184,6 +184,18 @@ pub struct ChunkStageTimes {
     pub write: f64,
 }
 
+impl Report {
+    /// The memory figures at the end of a build: the peak (the larger of
+    /// VmHWM and the memory limit's own looks, since VmHWM misses mapped
+    /// pages dropped before the kernel next updates it), the limit and
+    /// what went to scratch files.
+    pub(crate) fn record_memory(&mut self, memory: Option<&crate::store::Memory>) {
+        self.peak_rss_bytes = peak_rss().max(memory.map(crate::store::Memory::most_resident_bytes).filter(|&b| b > 0));
+        self.memory_limit_bytes = memory.map(crate::store::Memory::limit);
+        self.scratch_bytes = memory.map_or(0, crate::store::Memory::mapped_bytes);
+    }
+}
+
 /// Peak resident set size of this process, bytes (Linux only).
 pub fn peak_rss() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
