@@ -481,7 +481,18 @@ impl Rtin {
         // alone) until no bound is above what was found.
         let mut kept = vec![true; triangles.len()];
         let mut max_error_m: f64 = 0.0;
-        let mut bounds: Vec<(f32, usize)> = Vec::with_capacity(triangles.len());
+        // Bounds in a heap (only the few largest are ever taken), as f32
+        // bits, which order as the values do from +0 up, with NaN first.
+        let order = |b: f32| {
+            if b.is_nan() {
+                u32::MAX
+            } else if b > 0.0 {
+                b.to_bits()
+            } else {
+                0
+            }
+        };
+        let mut bounds: Vec<(u32, std::cmp::Reverse<usize>)> = Vec::with_capacity(triangles.len());
         for (k, t) in triangles.iter().enumerate() {
             let corners = t.map(|v| vertices[v as usize]);
             let at = |v: &MeshVertex| grid.heights[v.z as usize * grid.width + v.x as usize];
@@ -492,12 +503,12 @@ impl Rtin {
                 continue;
             }
             if let Some(m) = split_point(corners.map(|v| point(&v))) {
-                bounds.push((self.error_at(m.0, m.1), k));
+                bounds.push((order(self.error_at(m.0, m.1)), std::cmp::Reverse(k)));
             }
         }
-        bounds.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        for &(bound, k) in &bounds {
-            if f64::from(bound) <= max_error_m {
+        let mut bounds = std::collections::BinaryHeap::from(bounds);
+        while let Some((bound, std::cmp::Reverse(k))) = bounds.pop() {
+            if f64::from(f32::from_bits(bound)) <= max_error_m {
                 break;
             }
             let corners = triangles[k].map(|v| vertices[v as usize]);

@@ -319,11 +319,13 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
         VertexCache::Strip => meshopt::optimize_vertex_cache_strip(&p.indices, n),
     };
     let remap = meshopt::optimize_vertex_fetch_remap(&indices, n);
-    let mut order: Vec<(u32, usize)> =
-        remap.iter().enumerate().filter(|(_, r)| **r != u32::MAX).map(|(old, &new)| (new, old)).collect();
-    order.sort_unstable();
+    // The remap numbers the used vertices 0, 1, …: its inverse is the new order.
+    let mut order = vec![usize::MAX; remap.iter().filter(|&&r| r != u32::MAX).count()];
+    for (old, &new) in remap.iter().enumerate().filter(|(_, r)| **r != u32::MAX) {
+        order[new as usize] = old;
+    }
     let mut out = Part { indices: indices.iter().map(|&i| remap[i as usize]).collect(), ..Part::default() };
-    for (_, old) in order {
+    for old in order {
         out.push_from(p, old);
     }
     out
