@@ -19,6 +19,8 @@ pub struct Grid<'a> {
     /// Largest minus smallest valid height of the whole grid, metres: the
     /// f32 margin of the border lines, which neighbours must agree on.
     pub relief_m: f64,
+    /// Some sample is nodata.
+    pub has_nodata: bool,
     /// The memory limit the arrays above live under, if any: code that
     /// touches many of their pages quickly gives some back as it goes.
     pub memory: Option<&'a Memory>,
@@ -27,12 +29,13 @@ pub struct Grid<'a> {
 impl<'a> Grid<'a> {
     /// A grid over `heights` (row-major, NaN = nodata), with its relief.
     pub fn new(width: usize, height: usize, heights: &'a [f32], filled: Option<&'a [f32]>) -> Self {
-        let (lo, hi) = heights
+        let (lo, hi, valid) = heights
             .iter()
             .filter(|h| !h.is_nan())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
+            .fold((f32::INFINITY, f32::NEG_INFINITY, 0usize), |(lo, hi, n), &h| (lo.min(h), hi.max(h), n + 1));
         let relief_m = if hi >= lo { f64::from(hi) - f64::from(lo) } else { 0.0 };
-        Grid { width, height, heights, filled, relief_m, memory: None }
+        let has_nodata = valid < heights.len();
+        Grid { width, height, heights, filled, relief_m, has_nodata, memory: None }
     }
 
     /// The same grid, its pages given back under `memory` by

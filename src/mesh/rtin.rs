@@ -496,7 +496,7 @@ impl Rtin {
         for (k, t) in triangles.iter().enumerate() {
             let corners = t.map(|v| vertices[v as usize]);
             let at = |v: &MeshVertex| grid.heights[v.z as usize * grid.width + v.x as usize];
-            if corners.iter().all(|v| at(v).is_nan()) {
+            if grid.has_nodata && corners.iter().all(|v| at(v).is_nan()) {
                 let scan = scan_triangle(grid, &corners);
                 kept[k] = scan.valid;
                 max_error_m = max_error_m.max(scan.error);
