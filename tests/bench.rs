@@ -269,3 +269,28 @@ fn write_config(dir: &Path, text: &str) -> PathBuf {
     std::fs::write(&p, text).unwrap();
     p
 }
+
+/// A curved tileset is measured as `verify` measures it, along the
+/// ellipsoid normal from each sample's true place: within δ, where reading
+/// its Earth-placed positions as grid metres found tens of metres.
+#[test]
+fn a_curved_tileset_is_measured_along_the_ellipsoid_normal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("dfw_texas_srtm3.tif");
+    let out = tmp.path().join("out");
+    terrachunk(&[
+        "build",
+        dem.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--frame",
+        "curved",
+        "--texture",
+        "none",
+    ]);
+    let hf = terrachunk::dem::load(&[dem], &terrachunk::dem::LoadOptions::default()).unwrap();
+    let m = terrachunk::bench::measure::leaf_errors(&out, &hf).unwrap();
+    assert!(m.errors.samples > 0 && m.errors.uncovered_samples == 0, "{:?}", m.errors);
+    assert!(m.errors.max_error_m <= 1.0 + 1e-3, "measured {} m at δ 1 m", m.errors.max_error_m);
+    assert!(m.errors.max_error_m > 0.1, "measured nothing: {} m", m.errors.max_error_m);
+}

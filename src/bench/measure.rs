@@ -126,6 +126,15 @@ pub fn scan(hf: &Heightfield, verts: &[MeshVertex], tris: &[[u32; 3]], window: W
             }
         }
     }
+    sum_owned(hf, &best, window, owned)
+}
+
+/// [`ErrorSum`] of per-sample errors `best` over `window` (row-major,
+/// INFINITY where no triangle holds a sample): the largest over the
+/// window, the RMS and uncovered count over the samples it `owned`.
+fn sum_owned(hf: &Heightfield, best: &[f64], window: Window, owned: Window) -> ErrorSum {
+    let Window { x0, x1, z0, z1 } = window;
+    let w = (x1 - x0 + 1) as usize;
     let mut sum = ErrorSum::default();
     for i in z0..=z1 {
         for j in x0..=x1 {
@@ -194,6 +203,7 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
     if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
         return Err(bad("extras.terrachunk.spacing_m is missing".into()));
     }
+    let curved = crate::verify::Curved::of(&ts, hf).map_err(bad)?;
     let mut uris = Vec::new();
     collect_leaves(&ts["root"], &mut uris);
     let (last_x, last_z) = (hf.width as u32 - 1, hf.height as u32 - 1);
@@ -208,7 +218,6 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
                     what: format!("footprint {:?} is outside the grid", c.footprint),
                 });
             }
-            let verts = c.surface.grid_vertices(spacing);
             let window = Window { x0, x1, z0, z1 };
             // A border sample is owned by the chunk east / south of it.
             let owned = Window {
@@ -216,9 +225,26 @@ pub fn leaf_errors(dir: &Path, hf: &Heightfield) -> Result<LeafMeasure, BenchErr
                 z1: if z1 == last_z { z1 } else { z1 - 1 },
                 ..window
             };
-            let sum = scan(hf, &verts, &c.surface.triangles, window, owned);
+            // A curved chunk is measured as `verify` measures it: along the
+            // ellipsoid normal, from each sample's true place on the Earth.
+            let (c, sum) = match &curved {
+                None => {
+                    let verts = c.surface.grid_vertices(spacing);
+                    let sum = scan(hf, &verts, &c.surface.triangles, window, owned);
+                    (c, sum)
+                }
+                Some(cv) => {
+                    let input = |what: String| BenchError::Input { path: dir.join(uri), what };
+                    let (flat, bent) = cv.unbend(&c).map_err(input)?;
+                    let (best, _) = cv
+                        .sample_errors(hf, &flat, &bent)
+                        .ok_or_else(|| input("its footprint leaves the grid".into()))?;
+                    let sum = sum_owned(hf, &best, window, owned);
+                    (flat, sum)
+                }
+            };
             let plan: Vec<[f64; 2]> = c.surface.positions.iter().map(|p| [p[0], p[2]]).collect();
-            Ok((sum, quality::summarize(&plan, &c.surface.triangles), verts.len()))
+            Ok((sum, quality::summarize(&plan, &c.surface.triangles), c.surface.positions.len()))
         })
         .collect();
     let mut m = LeafMeasure { leaves: uris.len(), ..LeafMeasure::default() };

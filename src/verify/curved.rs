@@ -24,7 +24,7 @@ use crate::mesh::locate::{barycentric, points_near_triangle};
 
 /// The map from written positions to ECEF and grid, from the tileset's
 /// root transform and the DEM's georeference.
-pub(super) struct Curved {
+pub(crate) struct Curved {
     transform: [f64; 16],
     source: SourceCrs,
     origin: [f64; 2],
@@ -36,7 +36,7 @@ pub(super) struct Curved {
 
 /// A chunk's written surface in ECEF: its vertices, their morph targets,
 /// and how far f32 rounding may have moved either.
-pub(super) struct CurvedChunk {
+pub(crate) struct CurvedChunk {
     pub(super) surface: Vec<[f64; 3]>,
     pub(super) targets: Vec<[f64; 3]>,
     pub(super) rounding_m: f64,
@@ -45,7 +45,7 @@ pub(super) struct CurvedChunk {
 impl Curved {
     /// The map of a tileset whose extras say it is curved; `Ok(None)` for a
     /// flat one, `Err` where the curved tileset cannot be checked.
-    pub(super) fn of(ts: &Value, hf: &Heightfield) -> Result<Option<Curved>, String> {
+    pub(crate) fn of(ts: &Value, hf: &Heightfield) -> Result<Option<Curved>, String> {
         if ts["extras"]["terrachunk"]["placement"]["frame"] != "curved" {
             return Ok(None);
         }
@@ -94,7 +94,7 @@ impl Curved {
     /// The chunk in grid space (positions column · s_x, height, row · s_z,
     /// whole indices where the rounding allows; no morph deltas, which
     /// [`Curved::check_morph`] checks instead) and its surface in ECEF.
-    pub(super) fn unbend(&self, c: &ChunkFile) -> Result<(ChunkFile, CurvedChunk), String> {
+    pub(crate) fn unbend(&self, c: &ChunkFile) -> Result<(ChunkFile, CurvedChunk), String> {
         let rounding = |p: &Prim| 4.0 * f64::from(f32::EPSILON) * p.local_extent.iter().fold(1.0f64, |m, v| m.max(*v));
         let mut flat = c.clone();
         let mut surface = Vec::new();
@@ -124,21 +124,21 @@ impl Curved {
         Ok((flat, CurvedChunk { surface, targets, rounding_m }))
     }
 
-    /// The largest distance, along the ellipsoid normal at each valid
-    /// sample of the footprint, from its true position to the plane of the
-    /// written triangle holding it in grid space (the nearest, where it
-    /// lies on an edge); records it against `delta_m`.
-    pub(super) fn check_error(
+    /// Per sample of the footprint (row-major, INFINITY where no triangle
+    /// holds it or it is nodata), the distance along the ellipsoid normal
+    /// from its true position to the plane of the written triangle holding
+    /// it in grid space (the nearest, where it lies on an edge); and how
+    /// many samples are nowhere on the Earth. `None` where the footprint
+    /// leaves the grid.
+    pub(crate) fn sample_errors(
         &self,
         hf: &Heightfield,
         flat: &ChunkFile,
         bent: &CurvedChunk,
-        delta_m: f64,
-        problems: &mut Vec<String>,
-    ) -> f64 {
+    ) -> Option<(Vec<f64>, usize)> {
         let [x0, x1, z0, z1] = flat.footprint;
         if x1 as usize >= hf.width || z1 as usize >= hf.height {
-            return f64::INFINITY;
+            return None;
         }
         let w = (x1 - x0 + 1) as usize;
         // Each sample's true place is worked out again for each triangle
@@ -173,6 +173,20 @@ impl Curved {
                 best[at] = best[at].min(e);
             });
         }
+        Some((best, lost))
+    }
+
+    /// The largest of [`Curved::sample_errors`] over the footprint's valid
+    /// samples; records it against `delta_m`.
+    pub(super) fn check_error(
+        &self,
+        hf: &Heightfield,
+        flat: &ChunkFile,
+        bent: &CurvedChunk,
+        delta_m: f64,
+        problems: &mut Vec<String>,
+    ) -> f64 {
+        let Some((best, lost)) = self.sample_errors(hf, flat, bent) else { return f64::INFINITY };
         if lost > 0 {
             problems.push(format!("{lost} samples are nowhere on the Earth in the DEM's CRS"));
         }

@@ -36,6 +36,7 @@
 mod border;
 mod checks;
 mod curved;
+pub(crate) use curved::Curved;
 mod inspect;
 mod morph;
 mod read;
@@ -62,7 +63,7 @@ use crate::output::tileset::TilesetExtras;
 use crate::quadtree::ChunkKey;
 use border::{border_record, compare_border};
 use checks::{check_error, snap_error};
-use curved::{Curved, CurvedChunk};
+use curved::CurvedChunk;
 use morph::{ParentSurface, check_morph};
 use texture::{Texel, check_texture, compare_seam, seam_tolerance};
 use tree::{Index, check_transform, check_tree, content_in_box};
