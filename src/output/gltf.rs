@@ -25,7 +25,7 @@ use serde_json::{Value, json};
 
 use crate::chunk::{Chunk, Part};
 use crate::config::{Meshopt, NormalEncoding, VertexCache};
-use crate::output::compress::{self, Quantization, QuantizeError, Sink};
+use crate::output::compress::{self, Quantization, QuantizeError, Sink, align4};
 use crate::output::glb::{PrimData, accessor_layout, glb, index_bytes};
 use crate::texture::{TextureTile, TileImage};
 
@@ -329,12 +329,6 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
         out.push_from(p, old);
     }
     out
-}
-
-fn align4(bin: &mut Vec<u8>) {
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
 }
 
 fn push_vec3(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, data: &[[f32; 3]]) -> usize {

@@ -11,6 +11,7 @@
 
 mod chunk;
 pub mod out_dir;
+mod part;
 mod report;
 mod schedule;
 
@@ -29,10 +30,10 @@ use crate::output::compress::QuantizeError;
 use crate::output::tileset::{GridSize, MorphConvention, SourceFile, TilesetExtras, tileset_json, write_index};
 use crate::quadtree::ChunkTree;
 use crate::quadtree::estimate::{Planned, plan_tree};
-use crate::shard::{FixedPlan, PartBuilt, TreePart};
 use crate::store::Memory;
 use crate::texture::source::{generate_in, generated_to_px, load_image};
 use crate::texture::{TextureError, TextureSource};
+pub use part::{FixedPlan, PartBuilt, TreePart};
 
 pub use chunk::assemble;
 pub use out_dir::{OutDir, OutDirError};

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
+use super::part::TreePart;
 use super::report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Report};
 use super::{BuildError, BuildOptions};
 use crate::chunk::Chunk;
@@ -26,7 +27,6 @@ use crate::output::tileset::TileRecord;
 use crate::progress;
 use crate::quadtree::estimate::{Estimate, Planned, plan_tree};
 use crate::quadtree::{ChunkKey, ChunkTree, MAX_REFINE_LEVELS};
-use crate::shard::TreePart;
 use crate::store::Memory;
 use crate::texture::source::{generate_in, generated_to_px, load_image};
 use crate::texture::{ColourSource, Limit, NormalSource, TextureExtras, TextureSource, Texturer};

@@ -31,6 +31,7 @@ use sha2::{Digest, Sha256};
 use crate::config::Config;
 use crate::output::tileset::{TileRecord, TilesetExtras, tileset_json, write_index};
 use crate::pipeline::{BuildError, BuildOptions, Report, build_part, plan_fixed};
+pub use crate::pipeline::{FixedPlan, PartBuilt, TreePart};
 use crate::quadtree::{ChunkKey, ChunkTree};
 use crate::texture::TextureSource;
 
@@ -42,51 +43,6 @@ pub const MANIFEST_FILE: &str = "manifest.json";
 
 /// What a finished job leaves in its folder besides its chunks.
 const JOB_FILE: &str = "job.json";
-
-/// The tree every job of one sharded build builds: what [`pipeline::build`]
-/// plans for the same input and settings.
-///
-/// [`pipeline::build`]: crate::pipeline::build
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FixedPlan {
-    /// Grid size, samples `[width, height]`.
-    pub grid: [usize; 2],
-    /// The widest a deepest-level chunk may be, cells.
-    pub leaf_cells: u32,
-    /// Levels below the leaves' footprint that only halve δ.
-    pub refine_levels: u32,
-    /// Whether lone chunks fill by parts (the pipeline's `lone_parts`).
-    pub lone_parts: bool,
-}
-
-impl FixedPlan {
-    /// The tree itself.
-    pub fn tree(&self, cfg: &Config) -> ChunkTree {
-        let [w, h] = self.grid;
-        crate::pipeline::chunk_tree(cfg, [w, h], self.leaf_cells, self.refine_levels)
-    }
-}
-
-/// Which chunks of the tree one job builds.
-#[derive(Clone, Debug, PartialEq)]
-pub enum TreePart {
-    /// Every chunk above this level.
-    Above(u32),
-    /// These chunks (all of one level) and everything below them.
-    Under(Vec<ChunkKey>),
-}
-
-/// What one job built: its chunks' records for the index, the tileset's
-/// extras (the same in every job) and its report.
-#[derive(Debug)]
-pub struct PartBuilt {
-    /// The job's figures.
-    pub report: Report,
-    /// One per chunk written, in key order.
-    pub records: Vec<TileRecord>,
-    /// The index's top-level extras.
-    pub extras: TilesetExtras,
-}
 
 /// Where a DEM or texture path given relative to the plan's working folder
 /// is read from.

@@ -15,12 +15,10 @@
 
 use serde_json::Value;
 
-use super::morph::ParentSurface;
 use super::read::{ChunkFile, Prim};
 use crate::geodesy::{SourceCrs, ecef, geodetic, up};
 use crate::heightfield::Heightfield;
-use crate::mesh::MeshVertex;
-use crate::mesh::locate::{barycentric, points_near_triangle};
+use crate::mesh::locate::points_near_triangle;
 
 /// The map from written positions to ECEF and grid, from the tileset's
 /// root transform and the DEM's georeference.
@@ -29,7 +27,7 @@ pub(crate) struct Curved {
     source: SourceCrs,
     origin: [f64; 2],
     step: [f64; 2],
-    spacing: [f64; 2],
+    pub(super) spacing: [f64; 2],
     /// The DEM's degrees are WGS 84's (no datum shift at its centre).
     degrees: bool,
 }
@@ -93,7 +91,7 @@ impl Curved {
 
     /// The chunk in grid space (positions column · s_x, height, row · s_z,
     /// whole indices where the rounding allows; no morph deltas, which
-    /// [`Curved::check_morph`] checks instead) and its surface in ECEF.
+    /// [`super::morph::check_curved_morph`] checks instead) and its surface in ECEF.
     pub(crate) fn unbend(&self, c: &ChunkFile) -> Result<(ChunkFile, CurvedChunk), String> {
         let rounding = |p: &Prim| 4.0 * f64::from(f32::EPSILON) * p.local_extent.iter().fold(1.0f64, |m, v| m.max(*v));
         let mut flat = c.clone();
@@ -197,49 +195,6 @@ impl Curved {
             ));
         }
         worst
-    }
-
-    /// Each surface vertex's morph target against the parent's written
-    /// triangle at the vertex's grid point, in ECEF; returns the largest gap.
-    pub(super) fn check_morph(
-        &self,
-        flat: &ChunkFile,
-        bent: &CurvedChunk,
-        parent: &ParentSurface,
-        parent_bent: &CurvedChunk,
-        problems: &mut Vec<String>,
-    ) -> f64 {
-        let allowed = 2.0 * (bent.rounding_m + parent_bent.rounding_m) + 1e-6;
-        let verts = flat.surface.grid_vertices(self.spacing);
-        let loc = parent.locator();
-        let (mut gap, mut missing, mut over): (f64, usize, usize) = (0.0, 0, 0);
-        for (k, v) in verts.iter().enumerate() {
-            let Some((t, _)) = loc.locate(v.x, v.z, 1e-6) else {
-                missing += 1;
-                continue;
-            };
-            let corners = parent.triangle(t);
-            let on = [0, 1, 2].map(|axis| {
-                let with = |c: usize| MeshVertex {
-                    h: parent_bent.surface[corners[c] as usize][axis],
-                    ..parent.vertex(corners[c])
-                };
-                barycentric(&with(0), &with(1), &with(2), v.x, v.z).1
-            });
-            let g = dot(sub(bent.targets[k], on), sub(bent.targets[k], on)).sqrt();
-            gap = gap.max(g);
-            over += usize::from(g > allowed);
-        }
-        if missing > 0 {
-            problems.push(format!("{missing} vertices lie outside the parent's surface in grid space"));
-        }
-        if over > 0 {
-            problems.push(format!(
-                "{over} morph targets miss the parent's written surface, by up to {gap:.6} m (allowed {allowed:.6} m \
-                 of f32 rounding)"
-            ));
-        }
-        gap
     }
 }
 

@@ -64,7 +64,7 @@ use crate::quadtree::ChunkKey;
 use border::{border_record, compare_border};
 use checks::{check_error, snap_error};
 use curved::CurvedChunk;
-use morph::{ParentSurface, check_morph};
+use morph::{ParentSurface, check_curved_morph, check_morph};
 use texture::{Texel, check_texture, compare_seam, seam_tolerance};
 use tree::{Index, check_transform, check_tree, content_in_box};
 
@@ -405,7 +405,7 @@ impl Walk<'_> {
         }
         let gap = match parent {
             Parent::Read(p) => match (self.curved, ecef, p.curved()) {
-                (Some(cv), Some(e), Some(pe)) => cv.check_morph(flat, e, p, pe, &mut problems),
+                (Some(cv), Some(e), Some(pe)) => check_curved_morph(cv, flat, e, p, pe, &mut problems),
                 _ => check_morph(c, p, extras.spacing_m, &mut problems),
             },
             Parent::Unreadable => 0.0,

@@ -3,7 +3,7 @@
 //! the morphed chunk coincides with its parent everywhere (DESIGN.md,
 //! promise 3).
 
-use super::curved::CurvedChunk;
+use super::curved::{Curved, CurvedChunk};
 use super::name;
 use super::read::ChunkFile;
 use crate::mesh::MeshVertex;
@@ -221,6 +221,49 @@ fn plane_gradient(t: [MeshVertex; 3], spacing: [f64; 2]) -> [f64; 2] {
     let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
     let gz = ((b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2])) / det;
     [gx, gz]
+}
+
+/// Each surface vertex's morph target against the parent's written
+/// triangle at the vertex's grid point, in ECEF; returns the largest gap.
+pub(super) fn check_curved_morph(
+    curved: &Curved,
+    flat: &ChunkFile,
+    bent: &CurvedChunk,
+    parent: &ParentSurface,
+    parent_bent: &CurvedChunk,
+    problems: &mut Vec<String>,
+) -> f64 {
+    let allowed = 2.0 * (bent.rounding_m + parent_bent.rounding_m) + 1e-6;
+    let verts = flat.surface.grid_vertices(curved.spacing);
+    let loc = parent.locator();
+    let (mut gap, mut missing, mut over): (f64, usize, usize) = (0.0, 0, 0);
+    for (k, v) in verts.iter().enumerate() {
+        let Some((t, _)) = loc.locate(v.x, v.z, 1e-6) else {
+            missing += 1;
+            continue;
+        };
+        let corners = parent.triangle(t);
+        let on = [0, 1, 2].map(|axis| {
+            let with = |c: usize| MeshVertex {
+                h: parent_bent.surface[corners[c] as usize][axis],
+                ..parent.vertex(corners[c])
+            };
+            barycentric(&with(0), &with(1), &with(2), v.x, v.z).1
+        });
+        let g = (0..3).map(|a| (bent.targets[k][a] - on[a]).powi(2)).sum::<f64>().sqrt();
+        gap = gap.max(g);
+        over += usize::from(g > allowed);
+    }
+    if missing > 0 {
+        problems.push(format!("{missing} vertices lie outside the parent's surface in grid space"));
+    }
+    if over > 0 {
+        problems.push(format!(
+            "{over} morph targets miss the parent's written surface, by up to {gap:.6} m (allowed {allowed:.6} m \
+             of f32 rounding)"
+        ));
+    }
+    gap
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@
 
 use serde_json::{Value, json};
 
-use super::layout::{Sink, align4};
+use super::sink::{Sink, align4};
 use crate::config::{Meshopt, NormalEncoding};
 use crate::output::glb::index_values;
 

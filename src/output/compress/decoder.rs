@@ -7,7 +7,8 @@ use std::collections::BTreeMap;
 use serde_json::{Value, json};
 
 use super::codecs::{MESHOPT_EXTENSIONS, decode_stream};
-use super::layout::{Sink, align4, bounds};
+use super::layout::bounds;
+use super::sink::{Sink, align4};
 use crate::output::glb::{self, accessor_layout};
 
 /// A compressed chunk as plain glTF, and the grid it was quantized to.

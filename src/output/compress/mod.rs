@@ -51,8 +51,10 @@ mod codecs;
 mod decoder;
 mod layout;
 mod quantize;
+mod sink;
 
 pub use codecs::{cosine, decode_stream, encode_vertex_stream, meshopt_pack, octahedral};
 pub use decoder::{Decoded, decompress};
-pub use layout::{Sink, Stream, write_quantized};
+pub use layout::write_quantized;
 pub use quantize::{Frame, Quantization, QuantizeError};
+pub use sink::{Sink, Stream, align4};
