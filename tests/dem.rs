@@ -260,6 +260,15 @@ fn geotiff_sierra_crops() {
         assert_close(hf.georef.origin[1], 39.0 - f64::from(r0) / 1200.0, 1e-9);
         assert_close(hf.spacing_m[1], 92.5, 0.2);
     }
+    // The mosaic itself, its south-east quadrant's ground in place and the
+    // rest flat at 1291 m.
+    let hf = ok(&fixture("sierra_se_quadrant_i16.tif"));
+    assert_eq!((hf.width, hf.height), (3601, 3601));
+    assert_eq!(stats(&hf), (-85.0, 3359.0, 0));
+    assert_close(hf.georef.origin[0], -119.0, 1e-9);
+    assert_close(hf.georef.origin[1], 39.0, 1e-9);
+    assert_eq!(hf.get(1799, 1799), 1291.0);
+    assert_eq!(hf.get(0, 3600), 1291.0);
 }
 
 #[test]
@@ -1049,6 +1058,23 @@ fn regenerate_fixtures() {
                 assert!((back.georef.origin[a] - (sierra.georef.origin[a] + at)).abs() < 1e-9, "{name}");
             }
         }
+        // The whole mosaic with only its south-east quadrant's ground (rows
+        // and columns 1800…3600: the footprint of level-1 chunk 1/1/1 of the
+        // 16-cell-leaf tree, above 6/52/44) and the rest at one height
+        // (1291 m, about the median of 3/6/5's block). Unlike a crop it has
+        // the mosaic's tree, and above 6/52/44 it keeps the fan of nearly
+        // parallel parent edges: without `unsliver` its `quantize` build at
+        // 5 m turns that chunk's triangle over, as the mosaic's does.
+        // Smaller blocks of ground in place (1801 × 1351, 1801 × 901,
+        // 901², 451²) did not.
+        let data: Vec<i16> = (0..3601 * 3601)
+            .map(|k| {
+                let (r, c) = (k / 3601, k % 3601);
+                if r >= 1800 && c >= 1800 { sierra.get(r, c) as i16 } else { 1291 }
+            })
+            .collect();
+        let corner = [-119.0 - step / 2.0, 39.0 + step / 2.0];
+        write_deflate_geographic_i16(&out.join("sierra_se_quadrant_i16.tif"), [3601, 3601], corner, step, 16, &data);
     }
 
     // .hgt mosaic: a 21 × 21 block of N43E007 (the Var estuary at Nice) around its
@@ -1132,6 +1158,7 @@ fn regenerate_fixtures() {
         "california_crop_deflate.tif",
         "sierra_n38w118_crop_i16.tif",
         "sierra_n37w117_crop_i16.tif",
+        "sierra_se_quadrant_i16.tif",
         "hgt_mosaic",
         "hgt_mosaic/N01E000.hgt",
         "kilauea_crop_i16.bt",
