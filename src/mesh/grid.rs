@@ -4,6 +4,16 @@
 use crate::quadtree::Span;
 use crate::store::Memory;
 
+/// Steps (splits, vertices, or rows of a scan) between looks at the memory
+/// limit in a chunk at least [`RELIEF_SIDE`] cells wide: a coarse chunk of
+/// a large grid touches pages all over its square (each fault maps the
+/// pages around it too) faster than the limit's governor thread wakes.
+pub const RELIEF_STEPS: u32 = 512;
+
+/// The narrowest chunk, cells, whose passes look at the memory limit
+/// themselves; a narrower one touches too few rows to outrun the governor.
+pub const RELIEF_SIDE: u32 = 2048;
+
 /// The heights the mesher reads: the DEM (NaN = nodata) and, when the DEM has
 /// voids, a smooth fill used only for vertices forced onto nodata samples.
 #[derive(Clone, Copy)]
@@ -54,6 +64,15 @@ impl Grid<'_> {
     pub fn relieve(&self) {
         if let Some(m) = self.memory {
             m.relieve();
+        }
+    }
+
+    /// [`Grid::relieve`] at every [`RELIEF_STEPS`]th `step` of a pass over
+    /// a chunk `side` cells wide, if it is at least [`RELIEF_SIDE`] wide.
+    #[inline]
+    pub fn relieve_every(&self, side: u32, step: u32) {
+        if side >= RELIEF_SIDE && step.is_multiple_of(RELIEF_STEPS) {
+            self.relieve();
         }
     }
 

@@ -255,16 +255,25 @@ pub struct TilesetDoc<'a> {
     split: Option<u32>,
 }
 
+/// What [`write_index`] wrote.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IndexWritten {
+    /// Bytes, all files together.
+    pub bytes: u64,
+    /// Files: `tileset.json` and its external tilesets.
+    pub files: usize,
+}
+
 /// Writes `doc` as `dir/tileset.json` and its external tilesets beside it,
 /// compact (a client reads a whole index file before it draws anything,
-/// and indentation was four fifths of it; `jq .` reads them); returns the
-/// bytes written.
-pub fn write_index(dir: &Path, doc: &TilesetDoc) -> Result<u64, (PathBuf, std::io::Error)> {
-    let mut written = 0u64;
+/// and indentation was four fifths of it; `jq .` reads them).
+pub fn write_index(dir: &Path, doc: &TilesetDoc) -> Result<IndexWritten, (PathBuf, std::io::Error)> {
+    let mut written = IndexWritten::default();
     let mut write = |name: &str, bytes: Vec<u8>| {
         let path = dir.join(name);
         std::fs::write(&path, &bytes).map_err(|e| (path, e))?;
-        written += bytes.len() as u64;
+        written.bytes += bytes.len() as u64;
+        written.files += 1;
         Ok(())
     };
     for (uri, ext) in doc.external() {

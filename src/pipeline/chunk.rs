@@ -142,7 +142,7 @@ impl Run<'_> {
 pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64, globe: Option<&Globe>) -> Chunk {
     let (used, indices) = written(mesh);
     let ((x0, x1), (z0, z1)) = mesh.footprint;
-    let coarse = (x1 - x0).max(z1 - z0) >= crate::mesh::rtin::RELIEF_SIDE;
+    let side = (x1 - x0).max(z1 - z0);
     let targets: Vec<ParentPoint> = match globe {
         Some(_) => used.iter().map(|&(_, k)| mesh.parent_points[k]).collect(),
         None => Vec::new(),
@@ -155,9 +155,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
             .enumerate()
             .map(|(k, v)| {
                 // A coarse chunk's vertices span much of the grid, a few pages each.
-                if coarse && (k as u32).is_multiple_of(crate::mesh::rtin::RELIEF_STEPS) {
-                    grid.relieve();
-                }
+                grid.relieve_every(side, k as u32);
                 dem_normal(grid, spacing, v.x, v.z)
             })
             .collect(),

@@ -237,10 +237,10 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     report.flat_frame_error = extras.placement.as_ref().and_then(|p| p.flat_frame_error.clone());
     report.frame = extras.placement.as_ref().map_or(FrameKind::Flat, |p| p.frame);
     let doc = tileset_json(&tree, &records, &extras, cfg.index_tiles);
-    let index_bytes = write_index(out.tmp(), &doc).map_err(|(path, source)| BuildError::Io { path, source })?;
-    report.index_files = 1 + doc.external().len();
+    let index = write_index(out.tmp(), &doc).map_err(|(path, source)| BuildError::Io { path, source })?;
+    report.index_files = index.files;
     out.commit()?;
-    report.bytes += index_bytes;
+    report.bytes += index.bytes;
     report.bytes_per_sample = report.bytes as f64 / report.samples as f64;
     report.threads = threads;
     report.seconds = StageTimes {

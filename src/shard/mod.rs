@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::config::Config;
-use crate::output::tileset::{TileRecord, TilesetExtras, tileset_json, write_index};
+use crate::output::tileset::{IndexWritten, TileRecord, TilesetExtras, tileset_json, write_index};
 use crate::pipeline::{BuildError, BuildOptions, Report, build_part, plan_fixed};
 pub use crate::pipeline::{FixedPlan, PartBuilt, TreePart};
 use crate::quadtree::{ChunkKey, ChunkTree};
@@ -457,13 +457,13 @@ pub fn merge(manifest_path: &Path) -> Result<Merged, ShardError> {
     let doc = tileset_json(&tree, &records, &extras, m.config.index_tiles);
     let tmp = temp_beside(&m.out);
     let _ = std::fs::remove_dir_all(&tmp);
-    let mut index_bytes = 0u64;
+    let mut index = IndexWritten::default();
     let mut write = || -> Result<(), ShardError> {
         for (dir, _) in &results {
             link_tree(&dir.join("tiles"), &tmp.join("tiles"))?;
         }
         std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-        index_bytes = write_index(&tmp, &doc).map_err(|(path, e)| io(&path)(e))?;
+        index = write_index(&tmp, &doc).map_err(|(path, e)| io(&path)(e))?;
         let marker = tmp.join(crate::pipeline::out_dir::MARKER);
         std::fs::write(&marker, crate::pipeline::out_dir::MARKER_TEXT).map_err(io(&marker))?;
         if m.out.exists() {
@@ -475,7 +475,7 @@ pub fn merge(manifest_path: &Path) -> Result<Merged, ShardError> {
         let _ = std::fs::remove_dir_all(&tmp);
         return Err(e);
     }
-    Ok(Merged { out: m.out.clone(), chunks: records.len(), index_bytes, index_files: 1 + doc.external().len() })
+    Ok(Merged { out: m.out.clone(), chunks: records.len(), index_bytes: index.bytes, index_files: index.files })
 }
 
 /// `job-K`.

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use super::field::{RELIEF_SIDE, RELIEF_STEPS, Rtin, scan_triangle, vertex_height};
+use super::field::{Rtin, scan_triangle, vertex_height};
 use super::plan::square_side;
 use super::tri::{P, Place, Tri, point, split_point, square_triangles};
 use crate::geodesy::Globe;
@@ -269,9 +269,7 @@ impl Mesher<'_> {
             }
         };
         self.splits += 1;
-        if self.side >= RELIEF_SIDE && self.splits.is_multiple_of(RELIEF_STEPS) {
-            self.grid.relieve();
-        }
+        self.grid.relieve_every(self.side, self.splits);
         let [k0, k1] = t.children(m);
         self.descend(k0, [ph[2], ph[0], pm]);
         self.descend(k1, [ph[1], ph[2], pm]);

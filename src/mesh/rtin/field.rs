@@ -11,7 +11,7 @@ use super::plan::square_side;
 use super::tri::{P, Place, Tri, place, split_at};
 use crate::geodesy::Globe;
 use crate::mesh::MeshVertex;
-use crate::mesh::grid::Grid;
+use crate::mesh::grid::{Grid, RELIEF_STEPS};
 use crate::quadtree::ChunkTree;
 use crate::store::{self, Big, Memory};
 
@@ -332,16 +332,6 @@ pub(super) fn scan_triangle(grid: &Grid, corners: &[MeshVertex; 3]) -> Scan {
     };
     Scan { error, valid }
 }
-
-/// Steps (splits, vertices, or rows of a scan) between looks at the memory
-/// limit in a chunk at least [`RELIEF_SIDE`] cells wide: a coarse chunk of
-/// a large grid touches pages all over its square (each fault maps the
-/// pages around it too) faster than the limit's governor thread wakes.
-pub(crate) const RELIEF_STEPS: u32 = 512;
-
-/// The narrowest chunk, cells, whose passes look at the memory limit
-/// themselves; a narrower one touches too few rows to outrun the governor.
-pub(crate) const RELIEF_SIDE: u32 = 2048;
 
 /// The bottom-up pass's state: the grid and the errors found so far.
 pub(super) struct Field<'g> {

@@ -37,6 +37,5 @@ mod plan;
 mod tests;
 mod tri;
 
-pub(crate) use field::{RELIEF_SIDE, RELIEF_STEPS};
 pub use field::{Rtin, Sag};
 pub use plan::{fitting_root, plan, square_side};
