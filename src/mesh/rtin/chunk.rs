@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::field::{Rtin, scan_triangle, vertex_height};
 use super::plan::square_side;
-use super::tri::{P, Place, Tri, point, split_point, square_triangles};
+use super::tri::{P, Place, Tri, square_triangles};
 use crate::geodesy::Globe;
 use crate::mesh::grid::Grid;
 use crate::mesh::{ChunkMesh, MeshError, MeshVertex, ParentPoint};
@@ -78,6 +78,7 @@ impl Rtin {
             index: VertexIndex::over(side),
             vertices: Vec::new(),
             triangles: Vec::new(),
+            bounds: Vec::new(),
             globe,
             parent_points: Vec::new(),
             curved_error_m: 0.0,
@@ -92,7 +93,7 @@ impl Rtin {
         if m.vertices.len() > max_vertices {
             return Err(MeshError::TooDense { level: key.level, x: key.x, y: key.y, delta_m, limit: max_vertices });
         }
-        let Mesher { vertices, triangles, parent_points, curved_error_m, .. } = m;
+        let Mesher { vertices, triangles, bounds, parent_points, curved_error_m, .. } = m;
         // A triangle with a valid corner covers a valid sample; one with
         // none is scanned to see. The largest error is measured by scanning
         // in falling order of each triangle's stored bound (the error at
@@ -111,22 +112,25 @@ impl Rtin {
                 0
             }
         };
-        let mut bounds: Vec<(u32, std::cmp::Reverse<usize>)> = Vec::with_capacity(triangles.len());
-        for (k, t) in triangles.iter().enumerate() {
-            let corners = t.map(|v| vertices[v as usize]);
-            let at = |v: &MeshVertex| grid.heights[v.z as usize * grid.width + v.x as usize];
-            if grid.has_nodata && corners.iter().all(|v| at(v).is_nan()) {
-                let scan = scan_triangle(grid, &corners);
-                kept[k] = scan.valid;
-                max_error_m = max_error_m.max(scan.error);
-                continue;
+        let mut heap: Vec<(u32, std::cmp::Reverse<usize>)> = Vec::with_capacity(triangles.len());
+        for (k, (t, &bound)) in triangles.iter().zip(&bounds).enumerate() {
+            if grid.has_nodata {
+                let corners = t.map(|v| vertices[v as usize]);
+                let at = |v: &MeshVertex| grid.heights[v.z as usize * grid.width + v.x as usize];
+                if corners.iter().all(|v| at(v).is_nan()) {
+                    let scan = scan_triangle(grid, &corners);
+                    kept[k] = scan.valid;
+                    max_error_m = max_error_m.max(scan.error);
+                    continue;
+                }
             }
-            if let Some(m) = split_point(corners.map(|v| point(&v))) {
-                bounds.push((order(self.error_at(m.0, m.1)), std::cmp::Reverse(k)));
+            // A bound of 0 is never above what is found.
+            if order(bound) > 0 {
+                heap.push((order(bound), std::cmp::Reverse(k)));
             }
         }
-        let mut bounds = std::collections::BinaryHeap::from(bounds);
-        while let Some((bound, std::cmp::Reverse(k))) = bounds.pop() {
+        let mut heap = std::collections::BinaryHeap::from(heap);
+        while let Some((bound, std::cmp::Reverse(k))) = heap.pop() {
             if f64::from(f32::from_bits(bound)) <= max_error_m {
                 break;
             }
@@ -167,6 +171,9 @@ pub(super) struct Mesher<'a> {
     index: VertexIndex,
     vertices: Vec<MeshVertex>,
     triangles: Vec<[u32; 3]>,
+    /// Per triangle, the field's error at its split point (0 where it has
+    /// none): a bound on its own error, read as the descent kept it.
+    bounds: Vec<f32>,
     /// The curved frame and the grid spacing (metres), if it is written in it.
     globe: Option<(&'a Globe, [f64; 2])>,
     /// Per vertex, its parent-surface point (the curved frame only).
@@ -295,10 +302,11 @@ impl Mesher<'_> {
     fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
         // In the curved frame a triangle's error bound holds its sag too,
         // which decides whether the chunk needs children.
-        if let (Some(_), Some(m)) = (self.globe, t.midpoint()) {
-            let bound = f64::from(self.rtin.error_at(m.0, m.1)) + self.rounding(self.side);
-            self.curved_error_m = self.curved_error_m.max(bound);
+        let bound = t.midpoint().map_or(0.0, |m| self.rtin.error_at(m.0, m.1));
+        if self.globe.is_some() && t.midpoint().is_some() {
+            self.curved_error_m = self.curved_error_m.max(f64::from(bound) + self.rounding(self.side));
         }
+        self.bounds.push(bound);
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
         // Counter-clockwise seen from above (y up), as the TIN's are stored:
         // clockwise in x-east, z-south grid space.

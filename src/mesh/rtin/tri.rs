@@ -1,8 +1,6 @@
 //! The bintree's triangles by place alone: a triangle, where it splits,
 //! and where it lies against the grid.
 
-use crate::mesh::MeshVertex;
-
 /// A vertex's place on the grid: column, row.
 pub(super) type P = (u32, u32);
 
@@ -42,22 +40,6 @@ impl Tri {
         let (a, b, r) = (self.a, self.b, self.r);
         (a.0.min(b.0).min(r.0), a.0.max(b.0).max(r.0), a.1.min(b.1).min(r.1), a.1.max(b.1).max(r.1))
     }
-}
-
-/// A vertex's grid place (its coordinates are whole samples).
-pub(super) fn point(v: &MeshVertex) -> P {
-    (v.x as u32, v.z as u32)
-}
-
-/// Where a bintree triangle with corners `c` (in any order) would split:
-/// the midpoint of its longest side, if that is a sample.
-pub(super) fn split_point(c: [P; 3]) -> Option<P> {
-    let d2 = |p: P, q: P| {
-        let (dx, dz) = (u64::from(p.0.abs_diff(q.0)), u64::from(p.1.abs_diff(q.1)));
-        dx * dx + dz * dz
-    };
-    let (a, b) = [(c[0], c[1]), (c[1], c[2]), (c[2], c[0])].into_iter().max_by_key(|&(p, q)| d2(p, q))?;
-    Tri { a, b, r: a }.midpoint()
 }
 
 /// Where a triangle lies against the grid `[0, xmax] × [0, zmax]`.
