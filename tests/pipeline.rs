@@ -841,6 +841,36 @@ fn pipeline_toml_documents_exactly_the_defaults() {
     cfg.validate().unwrap();
 }
 
+/// The README's quick start, run as written (from a folder where
+/// `fixtures/` is the repository's): every `target/release/terrachunk`
+/// line but `view`, which opens a window. Its `verify` once lacked the
+/// `--dem` a tileset built from `fixtures/` needs, and failed.
+#[test]
+fn readme_quick_start_runs_as_written() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let section = readme.split("## Quick start").nth(1).expect("a Quick start section");
+    let block = section.split("```sh\n").nth(1).and_then(|b| b.split("```").next()).expect("a sh block");
+    let tmp = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink(root.join("fixtures"), tmp.path().join("fixtures")).unwrap();
+    let mut ran = 0;
+    for line in block.lines() {
+        let line = line.split('#').next().unwrap().trim();
+        let Some(args) = line.strip_prefix("target/release/terrachunk ") else { continue };
+        if args.starts_with("view") {
+            continue;
+        }
+        let o = Command::new(env!("CARGO_BIN_EXE_terrachunk"))
+            .args(args.split_whitespace())
+            .current_dir(tmp.path())
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "`{line}` failed:\n{}", String::from_utf8_lossy(&o.stderr));
+        ran += 1;
+    }
+    assert_eq!(ran, 3, "build, verify and inspect");
+}
+
 /// The README shows `terrachunk --help` and `terrachunk build --help` as
 /// the binary prints them, so its usage cannot drift from the options.
 #[test]
