@@ -33,10 +33,10 @@ use crate::quadtree::estimate::{Planned, plan_tree};
 use crate::store::Memory;
 use crate::texture::source::{generate_in, generated_to_px, load_image};
 use crate::texture::{TextureError, TextureSource};
-pub use part::{FixedPlan, PartBuilt, TreePart};
 
 pub use chunk::assemble;
 pub use out_dir::{OutDir, OutDirError};
+pub use part::{FixedPlan, PartBuilt, TreePart};
 pub use report::{ChunkStageTimes, LevelReport, LevelTexture, OverDelta, Report, StageTimes, Summary, peak_rss};
 
 /// What `build` needs.

@@ -302,10 +302,16 @@ impl Mesher<'_> {
     fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
         // In the curved frame a triangle's error bound holds its sag too,
         // which decides whether the chunk needs children.
-        let bound = t.midpoint().map_or(0.0, |m| self.rtin.error_at(m.0, m.1));
-        if self.globe.is_some() && t.midpoint().is_some() {
-            self.curved_error_m = self.curved_error_m.max(f64::from(bound) + self.rounding(self.side));
-        }
+        let bound = match t.midpoint() {
+            Some(m) => {
+                let bound = self.rtin.error_at(m.0, m.1);
+                if self.globe.is_some() {
+                    self.curved_error_m = self.curved_error_m.max(f64::from(bound) + self.rounding(self.side));
+                }
+                bound
+            }
+            None => 0.0,
+        };
         self.bounds.push(bound);
         let mut v = [(t.a, ph[0]), (t.b, ph[1]), (t.r, ph[2])].map(|(p, ph)| self.vertex(p, ph));
         // Counter-clockwise seen from above (y up), as the TIN's are stored:

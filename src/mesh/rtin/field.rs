@@ -354,7 +354,7 @@ impl Field<'_> {
     /// Fills the vertices of one level: the side midpoints of the squares
     /// of `c` (`square` false: triangles whose hypotenuse is a side) or
     /// their centres (`square` true: the halves of a square).
-    pub(super) fn level(&self, c: u32, square: bool) {
+    fn level(&self, c: u32, square: bool) {
         let h = c / 2;
         // Rows holding this level's vertices: (z, first x, x step).
         let mut rows: Vec<(u32, u32)> = Vec::new();
@@ -376,7 +376,7 @@ impl Field<'_> {
 
     /// The error of vertex `m`: the largest over the (one or two) triangles
     /// split there that reach into the grid.
-    pub(super) fn vertex(&self, c: u32, square: bool, m: P) -> f32 {
+    fn vertex(&self, c: u32, square: bool, m: P) -> f32 {
         let mut e = 0.0f32;
         for t in split_at(c, square, m).into_iter().flatten() {
             match place(&t, self.xmax, self.zmax) {
@@ -458,12 +458,12 @@ pub(super) fn rung(e: f32, ladder: f64) -> u32 {
 }
 
 /// How far rounding `h` to a multiple of `step` moves it (0 without a step).
-pub(super) fn rounds_by(h: f64, step: f64) -> f64 {
+fn rounds_by(h: f64, step: f64) -> f64 {
     if step > 0.0 { (h - (h / step).round() * step).abs() } else { 0.0 }
 }
 
 /// The smallest f32 at or above `v`.
-pub(super) fn up_f32(v: f64) -> f32 {
+fn up_f32(v: f64) -> f32 {
     let f = v as f32;
     if f64::from(f) < v { f.next_up() } else { f }
 }
