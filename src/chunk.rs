@@ -41,6 +41,22 @@ impl Part {
         [dx, self.morph_dy[k], dz]
     }
 
+    /// The vertices of `self` in `order` (indices into it), each field
+    /// gathered at its final size; `indices` as given.
+    pub fn gather(&self, order: &[usize], indices: Vec<u32>) -> Part {
+        fn pick<T: Copy>(v: &[T], order: &[usize]) -> Vec<T> {
+            if v.is_empty() { Vec::new() } else { order.iter().map(|&k| v[k]).collect() }
+        }
+        Part {
+            positions: pick(&self.positions, order),
+            normals: pick(&self.normals, order),
+            morph_dy: pick(&self.morph_dy, order),
+            morph_dxz: pick(&self.morph_dxz, order),
+            plan_m: pick(&self.plan_m, order),
+            indices,
+        }
+    }
+
     /// Appends vertex `k` of `from` (position, normal and morph, and the
     /// curved frame's fields where `from` has them).
     pub fn push_from(&mut self, from: &Part, k: usize) {

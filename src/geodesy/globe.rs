@@ -155,6 +155,26 @@ impl Globe {
         [east, up, north.map(|c| -c)]
     }
 
+    /// A grid-frame unit normal `n` (x east, y up, z south, as
+    /// `mesh::dem_normal` gives it) turned to world coordinates at grid
+    /// point (`j`, `i`): what [`Globe::axes`] does for every vertex of a
+    /// curved chunk, in ECEF first so that the frame's rotation is applied
+    /// once. Both turns are orthonormal, so the length stays 1 without a
+    /// square root.
+    pub fn turn_normal(&self, j: f64, i: f64, n: [f32; 3]) -> [f32; 3] {
+        let [east, north, up] = match self.at_sample(j, i) {
+            Some(([sp, cp, _], [sl, cl])) => [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]],
+            None => {
+                let Some((lat, lon)) = self.lat_lon(j, i) else { return [f32::NAN; 3] };
+                EnuFrame::new(lat, lon).axes
+            }
+        };
+        let [e, u, s] = n.map(f64::from);
+        let q = [0, 1, 2].map(|c| e * east[c] + u * up[c] - s * north[c]);
+        let [x, y, z] = self.frame.axes.map(|a| a[0] * q[0] + a[1] * q[1] + a[2] * q[2]);
+        [x as f32, z as f32, -y as f32]
+    }
+
     /// How far, at most, a chunk triangle written between the world
     /// positions of its corners strays from the surface its grid heights
     /// describe, along the normal, for a triangle held by a circle of
@@ -256,6 +276,24 @@ mod tests {
         let lat0 = origin[1] - step * (n - 1) as f64 / 2.0;
         let (mx, mz) = crate::heightfield::metres_per_degree(lat0);
         (g, [step * mx, step * mz])
+    }
+
+    #[test]
+    fn a_turned_normal_is_the_grid_normal_in_the_local_axes_and_stays_unit() {
+        let (g, s) = geographic([-10.0, 60.0], 0.5, 81);
+        let globe = Globe::of_grid(&g, 81, 81, s).unwrap();
+        let l = (0.3f64 * 0.3 + 1.0 + 0.2 * 0.2).sqrt();
+        let n = [0.3 / l, 1.0 / l, -0.2 / l].map(|c| c as f32);
+        for (j, i) in [(0.0, 0.0), (80.0, 0.0), (40.0, 40.0), (17.0, 63.0), (12.5, 3.0)] {
+            let axes = globe.axes(j, i);
+            let by_axes = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
+            let turned = globe.turn_normal(j, i, n);
+            let len = turned.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>().sqrt();
+            assert!((len - 1.0).abs() < 1e-6, "length {len} at ({j}, {i})");
+            for c in 0..3 {
+                assert!((f64::from(turned[c]) - by_axes[c]).abs() < 1e-6, "{turned:?} against {by_axes:?}");
+            }
+        }
     }
 
     #[test]

@@ -324,11 +324,7 @@ fn optimise(p: &Part, order: VertexCache) -> Part {
     for (old, &new) in remap.iter().enumerate().filter(|(_, r)| **r != u32::MAX) {
         order[new as usize] = old;
     }
-    let mut out = Part { indices: indices.iter().map(|&i| remap[i as usize]).collect(), ..Part::default() };
-    for old in order {
-        out.push_from(p, old);
-    }
-    out
+    p.gather(&order, indices.iter().map(|&i| remap[i as usize]).collect())
 }
 
 fn push_vec3(bin: &mut Vec<u8>, views: &mut Vec<Value>, accessors: &mut Vec<Value>, data: &[[f32; 3]]) -> usize {

@@ -193,17 +193,12 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
 /// bottom hangs along the normal.
 fn bend(chunk: &mut Chunk, targets: &[ParentPoint], hangs: &[Hang], globe: &Globe, spacing: [f64; 2]) {
     let surface = &mut chunk.surface;
-    let turn = |n: [f32; 3], axes: [[f64; 3]; 3]| -> [f32; 3] {
-        let v = [0, 1, 2].map(|c| (0..3).map(|a| f64::from(n[a]) * axes[a][c]).sum::<f64>());
-        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        v.map(|c| (c / len) as f32)
-    };
     let mut deltas = Vec::with_capacity(surface.positions.len());
     for (k, &(j, i)) in chunk.surface_grid.iter().enumerate() {
         // A vertex the parent has too was placed once, for both.
         let target = targets[k];
         let p = if target.shared { target.at } else { globe.world(j, i, surface.positions[k][1]) };
-        surface.normals[k] = turn(surface.normals[k], globe.axes(j, i));
+        surface.normals[k] = globe.turn_normal(j, i, surface.normals[k]);
         deltas.push([0, 1, 2].map(|a| target.at[a] - p[a]));
         surface.positions[k] = p;
     }

@@ -86,8 +86,14 @@ impl Rtin {
         };
         for (t, ph) in square_triangles(from.0, from.1, from.2) {
             match globe {
-                None => m.descend(t, ph.map(|p| vertex_height(grid, p))),
-                Some(_) => m.descend(t, ph.map(|p| OnGlobe::own(globe, p, vertex_height(grid, p)))),
+                None => {
+                    let ph = ph.map(|p| vertex_height(grid, p));
+                    m.descend(t, [&ph[0], &ph[1], &ph[2]]);
+                }
+                Some(_) => {
+                    let ph = ph.map(|p| OnGlobe::own(globe, p, vertex_height(grid, p)));
+                    m.descend(t, [&ph[0], &ph[1], &ph[2]]);
+                }
             }
         }
         if m.vertices.len() > max_vertices {
@@ -244,8 +250,10 @@ impl ParentSurface for OnGlobe {
 }
 
 impl Mesher<'_> {
-    /// `ph`: the parent surface at `t`'s corners a, b, r.
-    fn descend<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
+    /// `ph`: the parent surface at `t`'s corners a, b, r (borrowed from the
+    /// frames above: a curved-frame point is 40 bytes, copied at every split
+    /// otherwise).
+    fn descend<S: ParentSurface>(&mut self, t: Tri, ph: [&S; 3]) {
         let (x0, x1, z0, z1) = t.bbox();
         let (sx, sz, c) = (self.square.0, self.square.1, self.side);
         // Only what reaches into the chunk's square.
@@ -271,15 +279,15 @@ impl Mesher<'_> {
                 if coarser(ps) || self.splits(&t, place, pd, ps).is_some() {
                     S::own(self.globe, m, vertex_height(self.grid, m))
                 } else {
-                    S::middle(ph[0], ph[1])
+                    S::middle(*ph[0], *ph[1])
                 }
             }
         };
         self.splits += 1;
         self.grid.relieve_every(self.side, self.splits);
         let [k0, k1] = t.children(m);
-        self.descend(k0, [ph[2], ph[0], pm]);
-        self.descend(k1, [ph[1], ph[2], pm]);
+        self.descend(k0, [ph[2], ph[0], &pm]);
+        self.descend(k1, [ph[1], ph[2], &pm]);
     }
 
     /// Whether the mesh at `delta` (a level of squares of `side` cells)
@@ -299,7 +307,7 @@ impl Mesher<'_> {
         self.globe.map_or(0.0, |(_, s)| 4.0 * f64::from(f32::EPSILON) * f64::from(side) * s[0].max(s[1]))
     }
 
-    fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [S; 3]) {
+    fn emit<S: ParentSurface>(&mut self, t: Tri, ph: [&S; 3]) {
         // In the curved frame a triangle's error bound holds its sag too,
         // which decides whether the chunk needs children.
         let bound = match t.midpoint() {
@@ -323,7 +331,7 @@ impl Mesher<'_> {
         self.triangles.push(v);
     }
 
-    fn vertex<S: ParentSurface>(&mut self, p: P, ph: S) -> u32 {
+    fn vertex<S: ParentSurface>(&mut self, p: P, ph: &S) -> u32 {
         let local = (p.0 - self.square.0, p.1 - self.square.1);
         let next = self.vertices.len() as u32;
         let v = self.index.entry(local, next);

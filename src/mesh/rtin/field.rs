@@ -181,59 +181,84 @@ impl Rtin {
         })
     }
 
-    /// Per side in `sides` and per rung k, the most samples any closed
-    /// square of that side (aligned to it) holds above rung k: one pass over
-    /// the field, rows in parallel.
+    /// Per side in `sides` (powers of two) and per rung k, the most samples
+    /// any closed square of that side (aligned to it) holds above rung k.
+    /// One pass over the field, bands of rows in parallel, counts per cell
+    /// of the smallest side: samples in the half-open cell, on its west
+    /// line, on its north line and at its north-west corner. A closed
+    /// square of any side is then a block of cells plus the west lines of
+    /// the column past it, the north lines of the row below it and one
+    /// corner: each sample is counted once, not once per side.
     pub(super) fn densest_squares(&self, sides: &[u32]) -> Vec<Vec<usize>> {
+        const CELL: usize = 0;
+        const WEST: usize = 1;
+        const NORTH: usize = 2;
+        const CORNER: usize = 3;
         let (wc, hc) = ((self.width - 1) as u32, (self.height - 1) as u32);
-        let shape: Vec<(u32, usize)> = sides.iter().map(|&s| (s, wc.div_ceil(s).max(1) as usize)).collect();
-        let tables = || -> Vec<Vec<u32>> {
-            shape.iter().map(|&(s, nx)| vec![0u32; nx * hc.div_ceil(s).max(1) as usize * RUNGS]).collect()
+        let Some(&s0) = sides.iter().min() else { return Vec::new() };
+        debug_assert!(sides.iter().all(|s| s.is_power_of_two()));
+        let shift0 = s0.trailing_zeros();
+        let (nx0, nz0) = ((wc >> shift0) as usize + 1, (hc >> shift0) as usize + 1);
+        let band_len = 4 * nx0 * RUNGS;
+        let mut counts = vec![0u32; nz0 * band_len];
+        counts.par_chunks_mut(band_len).enumerate().for_each(|(jb, band)| {
+            let first = (jb as u32) << shift0;
+            for z in first..=(first + (s0 - 1)).min(hc) {
+                let row = &self.errors[z as usize * self.width..][..self.width];
+                for (x, &e) in row.iter().enumerate() {
+                    if f64::from(e) <= self.ladder {
+                        continue;
+                    }
+                    let k = (rung(e, self.ladder) as usize).min(RUNGS - 1);
+                    let x = x as u32;
+                    let at = |kind: usize| (kind * nx0 + (x >> shift0) as usize) * RUNGS + k;
+                    let west = x & (s0 - 1) == 0;
+                    band[at(CELL)] += 1;
+                    if west {
+                        band[at(WEST)] += 1;
+                    }
+                    if z == first {
+                        band[at(NORTH)] += 1;
+                        if west {
+                            band[at(CORNER)] += 1;
+                        }
+                    }
+                }
+            }
+        });
+        let add = |sq: &mut [u32; RUNGS], kind: usize, ib: usize, jb: usize| {
+            if ib < nx0 && jb < nz0 {
+                let from = jb * band_len + (kind * nx0 + ib) * RUNGS;
+                for (a, &c) in sq.iter_mut().zip(&counts[from..from + RUNGS]) {
+                    *a += c;
+                }
+            }
         };
-        let rows: Vec<u32> = (0..=hc).collect();
-        let sums = rows
-            .par_chunks(64)
-            .fold(tables, |mut t, chunk| {
-                for &z in chunk {
-                    let row = &self.errors[z as usize * self.width..][..self.width];
-                    for (x, &e) in row.iter().enumerate() {
-                        if f64::from(e) <= self.ladder {
-                            continue;
-                        }
-                        let k = (rung(e, self.ladder) as usize).min(RUNGS - 1);
-                        let x = x as u32;
-                        for (table, &(s, nx)) in t.iter_mut().zip(&shape) {
-                            // Every closed square the sample lies in.
-                            let (i, j) = ((x / s) as usize, (z / s) as usize);
-                            let nz = table.len() / (nx * RUNGS);
-                            let is = [Some(i), (x.is_multiple_of(s) && i > 0).then(|| i - 1)];
-                            let js = [Some(j), (z.is_multiple_of(s) && j > 0).then(|| j - 1)];
-                            for jj in js.into_iter().flatten().filter(|&jj| jj < nz) {
-                                for ii in is.into_iter().flatten().filter(|&ii| ii < nx) {
-                                    table[(jj * nx + ii) * RUNGS + k] += 1;
-                                }
-                            }
-                        }
-                    }
-                }
-                t
-            })
-            .reduce(tables, |mut a, b| {
-                for (ta, tb) in a.iter_mut().zip(&b) {
-                    for (x, y) in ta.iter_mut().zip(tb) {
-                        *x += y;
-                    }
-                }
-                a
-            });
-        sums.iter()
-            .map(|table| {
+        sides
+            .iter()
+            .map(|&s| {
+                let m = (s >> shift0) as usize;
+                let (nx, nz) = (wc.div_ceil(s).max(1) as usize, hc.div_ceil(s).max(1) as usize);
                 let mut most = vec![0usize; RUNGS];
-                for sq in table.chunks(RUNGS) {
-                    let mut above = 0usize;
-                    for k in (0..RUNGS).rev() {
-                        most[k] = most[k].max(above);
-                        above += sq[k] as usize;
+                for j in 0..nz {
+                    for i in 0..nx {
+                        let mut sq = [0u32; RUNGS];
+                        let (cols, rows) = (i * m..(i + 1) * m, j * m..(j + 1) * m);
+                        for jb in rows.clone() {
+                            for ib in cols.clone() {
+                                add(&mut sq, CELL, ib, jb);
+                            }
+                            add(&mut sq, WEST, (i + 1) * m, jb);
+                        }
+                        for ib in cols {
+                            add(&mut sq, NORTH, ib, (j + 1) * m);
+                        }
+                        add(&mut sq, CORNER, (i + 1) * m, (j + 1) * m);
+                        let mut above = 0usize;
+                        for k in (0..RUNGS).rev() {
+                            most[k] = most[k].max(above);
+                            above += sq[k] as usize;
+                        }
                     }
                 }
                 most

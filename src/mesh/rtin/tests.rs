@@ -245,6 +245,38 @@ proptest! {
         }
     }
 
+    /// The densest closed square of every side at once, from cell counts,
+    /// is the densest found by counting every square's samples one by one.
+    #[test]
+    fn densest_squares_count_every_closed_square((w, h, heights, err, leaf) in heights_strategy()) {
+        let grid = Grid::new(w, h, &heights, None);
+        let tree = plan(w, h, err, None, leaf, 0);
+        let rtin = Rtin::new(&grid, &tree, None, None);
+        let (wc, hc) = ((w - 1) as u32, (h - 1) as u32);
+        let sides: Vec<u32> = (0..5).map(|k| 1u32 << k).filter(|&s| s <= 2 * wc.max(hc).max(1)).collect();
+        let counted = rtin.densest_squares(&sides);
+        for (s, counted) in sides.iter().zip(&counted) {
+            let mut most = vec![0usize; RUNGS];
+            for j in 0..hc.div_ceil(*s).max(1) {
+                for i in 0..wc.div_ceil(*s).max(1) {
+                    let mut above = vec![0usize; RUNGS];
+                    for z in j * s..=((j + 1) * s).min(hc) {
+                        for x in i * s..=((i + 1) * s).min(wc) {
+                            let k = (rung(rtin.error_at(x, z), err) as usize).min(RUNGS - 1);
+                            for (kk, a) in above.iter_mut().enumerate() {
+                                *a += usize::from(k > kk);
+                            }
+                        }
+                    }
+                    for (m, a) in most.iter_mut().zip(&above) {
+                        *m = (*m).max(*a);
+                    }
+                }
+            }
+            prop_assert_eq!(&most, counted, "side {}", s);
+        }
+    }
+
     /// A rung is how many of the δs a value exceeds, counted one by one.
     #[test]
     fn rung_counts_the_deltas_exceeded(bits in any::<u32>(), ladder in prop_oneof![Just(1.0), Just(0.001), Just(0.37), 1e-3..1e3f64]) {
