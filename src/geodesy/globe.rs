@@ -28,17 +28,40 @@ pub struct Globe {
     centre: [f64; 2],
     /// Longitude and latitude of the grid centre, degrees.
     pub lon_lat: [f64; 2],
-    /// For a grid of degrees, per row (sin φ, cos φ, N, the prime vertical
-    /// radius) and per column (sin λ, cos λ): a vertex at a sample then
-    /// costs no trigonometry.
-    rows: Vec<[f64; 3]>,
-    cols: Vec<[f64; 2]>,
+    /// For a grid of degrees, per row and per column what a vertex at a
+    /// sample needs ([`Row`], [`Col`]): no trigonometry, and the frame's
+    /// rotation folded into each column.
+    rows: Vec<Row>,
+    cols: Vec<Col>,
+    /// The frame's rotation applied to its origin, and its column for the
+    /// ECEF z axis: ENU = R·p − R·o.
+    rotated_origin: [f64; 3],
+    frame_z: [f64; 3],
     /// Bounds on the second derivative of [`Globe::world`] with respect to
     /// grid metres (x = column · s_x, z = row · s_z), 1/m: its part along
     /// the ellipsoid normal (the Earth's curvature, which makes a chord
     /// sag) and across it (the projection's own bending, which moves a
     /// chord sideways).
     pub curvature: [f64; 2],
+}
+
+/// A row of a grid of degrees: sin φ, cos φ, and N cos φ and N(1 − e²) sin φ
+/// (N the prime vertical radius).
+#[derive(Clone, Copy, Debug)]
+struct Row {
+    sin: f64,
+    cos: f64,
+    n_cos: f64,
+    n_sin: f64,
+}
+
+/// A column of a grid of degrees: sin λ, cos λ, and the frame's rotation of
+/// the ECEF direction (cos λ, sin λ, 0).
+#[derive(Clone, Copy, Debug)]
+struct Col {
+    sin: f64,
+    cos: f64,
+    rotated: [f64; 3],
 }
 
 impl Globe {
@@ -67,6 +90,8 @@ impl Globe {
             curvature: [0.0; 2],
             rows: Vec::new(),
             cols: Vec::new(),
+            rotated_origin: [0.0; 3],
+            frame_z: [0.0; 3],
         };
         let lat_edges = [0.0, (height - 1) as f64].map(|i| globe.origin[1] + globe.step[1] * i);
         if globe.source.geographic && lat_edges.iter().any(|l| l.abs() >= 90.0 - 1e-9) {
@@ -82,16 +107,20 @@ impl Globe {
             let e2 = super::WGS84_E2;
             globe.rows = (0..height)
                 .map(|i| {
-                    let (s, c) = (georef.origin[1] + georef.step[1] * i as f64).to_radians().sin_cos();
-                    [s, c, super::WGS84_A / (1.0 - e2 * s * s).sqrt()]
+                    let (sp, cp) = (georef.origin[1] + georef.step[1] * i as f64).to_radians().sin_cos();
+                    let n = super::WGS84_A / (1.0 - e2 * sp * sp).sqrt();
+                    Row { sin: sp, cos: cp, n_cos: n * cp, n_sin: n * (1.0 - e2) * sp }
                 })
                 .collect();
+            let axes = globe.frame.axes;
             globe.cols = (0..width)
                 .map(|j| {
-                    let (s, c) = (georef.origin[0] + georef.step[0] * j as f64).to_radians().sin_cos();
-                    [s, c]
+                    let (sl, cl) = (georef.origin[0] + georef.step[0] * j as f64).to_radians().sin_cos();
+                    Col { sin: sl, cos: cl, rotated: axes.map(|a| a[0] * cl + a[1] * sl) }
                 })
                 .collect();
+            globe.rotated_origin = axes.map(|a| (0..3).map(|k| a[k] * globe.frame.origin[k]).sum());
+            globe.frame_z = axes.map(|a| a[2]);
         }
         Ok(globe)
     }
@@ -109,39 +138,43 @@ impl Globe {
     /// at the grid centre shifted so that the centre keeps its flat place)
     /// of grid point (`j`, `i`) at ellipsoidal height `h`; NaN where the
     /// projection has no inverse there.
+    #[inline]
     pub fn world(&self, j: f64, i: f64, h: f64) -> [f64; 3] {
-        let p = match self.at_sample(j, i) {
-            Some(([sp, cp, n], [sl, cl])) => {
-                let e2 = super::WGS84_E2;
-                [(n + h) * cp * cl, (n + h) * cp * sl, (n * (1.0 - e2) + h) * sp]
+        let enu = match self.at_sample(j, i) {
+            Some((row, col)) => {
+                // ECEF (x, y, z) = ((N + h) cos φ (cos λ, sin λ), (N(1 − e²) + h) sin φ).
+                let (across, z) = (row.n_cos + h * row.cos, row.n_sin + h * row.sin);
+                [0, 1, 2].map(|k| across * col.rotated[k] + z * self.frame_z[k] - self.rotated_origin[k])
             }
             None => {
                 let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
-                ecef(lat, lon, h)
+                self.frame.enu(ecef(lat, lon, h))
             }
         };
-        let enu = self.frame.enu(p);
         [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
     }
 
     /// The row's and column's tables where (`j`, `i`) is a sample of a grid
     /// of degrees.
     #[inline]
-    fn at_sample(&self, j: f64, i: f64) -> Option<([f64; 3], [f64; 2])> {
+    fn at_sample(&self, j: f64, i: f64) -> Option<(&Row, &Col)> {
         // Whole and not negative: the casts saturate, so anything else
         // comes back changed (compared so, with no call to `trunc`).
         let (jj, ii) = (j as usize, i as usize);
         if jj as f64 != j || ii as f64 != i {
             return None;
         }
-        Some((*self.rows.get(ii)?, *self.cols.get(jj)?))
+        Some((self.rows.get(ii)?, self.cols.get(jj)?))
     }
 
     /// The east, up and south unit vectors at grid point (`j`, `i`), in
     /// world coordinates: what a flat-frame normal is expressed in there.
     pub fn axes(&self, j: f64, i: f64) -> [[f64; 3]; 3] {
         let local = match self.at_sample(j, i) {
-            Some(([sp, cp, _], [sl, cl])) => [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]],
+            Some((row, col)) => {
+                let (sp, cp, sl, cl) = (row.sin, row.cos, col.sin, col.cos);
+                [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
+            }
             None => {
                 let Some((lat, lon)) = self.lat_lon(j, i) else { return [[f64::NAN; 3]; 3] };
                 EnuFrame::new(lat, lon).axes
@@ -163,7 +196,10 @@ impl Globe {
     /// square root.
     pub fn turn_normal(&self, j: f64, i: f64, n: [f32; 3]) -> [f32; 3] {
         let [east, north, up] = match self.at_sample(j, i) {
-            Some(([sp, cp, _], [sl, cl])) => [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]],
+            Some((row, col)) => {
+                let (sp, cp, sl, cl) = (row.sin, row.cos, col.sin, col.cos);
+                [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
+            }
             None => {
                 let Some((lat, lon)) = self.lat_lon(j, i) else { return [f32::NAN; 3] };
                 EnuFrame::new(lat, lon).axes
@@ -186,7 +222,7 @@ impl Globe {
     /// slope by slope times it.
     pub fn margin_m(curvature: [f64; 2], r2: f64, slope: f64) -> f64 {
         let [normal, across] = curvature;
-        r2 / 2.0 * (normal + slope * (across + 2.0 * slope / MIN_RADIUS_M))
+        r2 / 2.0 * (normal + slope * (across + slope * (2.0 / MIN_RADIUS_M)))
     }
 
     /// The largest second derivative of `world` (at height 0) over a 9 × 9

@@ -32,13 +32,13 @@ impl Sag {
         Sag { curvature: globe.curvature, spacing }
     }
 
-    /// The sag bound of the triangle with these corners (grid units, with
-    /// their heights): [`Globe::margin_m`] for the smallest circle holding
-    /// it and its planar slope.
-    pub(super) fn of_triangle(&self, c: &[MeshVertex; 3]) -> f64 {
+    /// The shape of the bintree triangles congruent to `t`: every triangle
+    /// of one level and orientation has the same enclosing circle and plan
+    /// area in metres, so they are worked out once per level.
+    pub(super) fn shape(&self, t: &Tri) -> SagShape {
         let s = self.spacing;
-        let p = c.map(|v| [v.x * s[0], v.z * s[1], v.h]);
-        let d = |a: usize, b: usize| [p[b][0] - p[a][0], p[b][1] - p[a][1], p[b][2] - p[a][2]];
+        let p = [t.a, t.b, t.r].map(|q| [f64::from(q.0) * s[0], f64::from(q.1) * s[1]]);
+        let d = |a: usize, b: usize| [p[b][0] - p[a][0], p[b][1] - p[a][1]];
         let (u, v, w) = (d(0, 1), d(0, 2), d(1, 2));
         let (a2, b2, c2) = (u[0] * u[0] + u[1] * u[1], v[0] * v[0] + v[1] * v[1], w[0] * w[0] + w[1] * w[1]);
         // On its longest side where the angle there is right or obtuse,
@@ -49,11 +49,32 @@ impl Sag {
         } else {
             a2 * b2 * c2 / (2.0 * (a2 * b2 + b2 * c2 + c2 * a2) - (a2 * a2 + b2 * b2 + c2 * c2))
         };
-        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let slope = ((n[0] * n[0] + n[1] * n[1]) / (n[2] * n[2])).sqrt();
-        let slope = if slope.is_finite() { slope } else { 0.0 };
-        Globe::margin_m(self.curvature, r2, slope)
+        SagShape { r2, inv_plan2: 1.0 / (u[0] * v[1] - u[1] * v[0]).abs() }
     }
+
+    /// The sag bound of the triangle with these corners (grid units, with
+    /// their heights) and this `shape`: [`Globe::margin_m`] for its
+    /// smallest enclosing circle and its planar slope.
+    pub(super) fn of_triangle(&self, shape: &SagShape, c: &[MeshVertex; 3]) -> f64 {
+        let s = self.spacing;
+        let p = c.map(|v| [v.x * s[0], v.z * s[1], v.h]);
+        let d = |a: usize, b: usize| [p[b][0] - p[a][0], p[b][1] - p[a][1], p[b][2] - p[a][2]];
+        let (u, v) = (d(0, 1), d(0, 2));
+        // The normal's horizontal part over its vertical one (twice the plan area).
+        let (n0, n1) = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2]);
+        let slope = (n0 * n0 + n1 * n1).sqrt() * shape.inv_plan2;
+        let slope = if slope.is_finite() { slope } else { 0.0 };
+        Globe::margin_m(self.curvature, shape.r2, slope)
+    }
+}
+
+/// What [`Sag::of_triangle`] needs of a bintree triangle's shape.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct SagShape {
+    /// The squared radius of its smallest enclosing circle, m².
+    r2: f64,
+    /// 1 / (twice its plan area), 1/m².
+    inv_plan2: f64,
 }
 
 /// The error field: what every chunk of one build is cut from, for any
@@ -381,6 +402,12 @@ impl Field<'_> {
     /// their centres (`square` true: the halves of a square).
     fn level(&self, c: u32, square: bool) {
         let h = c / 2;
+        // The shapes of this level's triangles: the halves of a square, or
+        // those on a horizontal and on a vertical side ([`shape_of`]).
+        let shapes = self.sag.map(|s| {
+            let first = |m: P| split_at(c, square, m).into_iter().flatten().next().expect("a triangle splits there");
+            if square { [s.shape(&first((h, h))); 2] } else { [s.shape(&first((h, 0))), s.shape(&first((0, h)))] }
+        });
         // Rows holding this level's vertices: (z, first x, x step).
         let mut rows: Vec<(u32, u32)> = Vec::new();
         let mut z = if square { h } else { 0 };
@@ -392,7 +419,7 @@ impl Field<'_> {
         rows.par_iter().for_each(|&(z, first)| {
             let mut x = first;
             while x <= self.xmax {
-                let e = self.vertex(c, square, (x, z));
+                let e = self.vertex(c, square, (x, z), shapes.as_ref());
                 self.errors[z as usize * self.grid.width + x as usize].store(e.to_bits(), Ordering::Relaxed);
                 x += c;
             }
@@ -401,8 +428,9 @@ impl Field<'_> {
 
     /// The error of vertex `m`: the largest over the (one or two) triangles
     /// split there that reach into the grid.
-    fn vertex(&self, c: u32, square: bool, m: P) -> f32 {
+    fn vertex(&self, c: u32, square: bool, m: P, shapes: Option<&[SagShape; 2]>) -> f32 {
         let mut e = 0.0f32;
+        let shape = shapes.map(|s| s[shape_of(c, square, m)]);
         for t in split_at(c, square, m).into_iter().flatten() {
             match place(&t, self.xmax, self.zmax) {
                 Place::Outside => {}
@@ -413,7 +441,7 @@ impl Field<'_> {
                         MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph: h }
                     });
                     let rounding = corners.iter().map(|v| rounds_by(v.h, self.step)).fold(0.0, f64::max)
-                        + self.sag.map_or(0.0, |s| s.of_triangle(&corners));
+                        + self.sag.zip(shape).map_or(0.0, |(s, shape)| s.of_triangle(&shape, &corners));
                     // Bounds on the scan: at least the sample at m is off the
                     // plane by `off`; at most that plus the children's own
                     // errors (on a child, the two planes differ by a linear
@@ -449,6 +477,13 @@ impl Field<'_> {
         }
         e
     }
+}
+
+/// Which of a level's two triangle shapes those split at `m` have: 0 for
+/// the halves of a square and those on a horizontal side, 1 on a vertical
+/// one.
+pub(super) fn shape_of(c: u32, square: bool, m: P) -> usize {
+    usize::from(!square && !m.1.is_multiple_of(c))
 }
 
 /// Rungs [`Rtin::densest_over`] tells apart; higher ones count as the last

@@ -2,6 +2,7 @@ use proptest::prelude::*;
 
 use super::field::*;
 use super::plan::*;
+use super::tri::{P, split_at};
 
 use crate::mesh::grid::Grid;
 use crate::mesh::{ChunkMesh, MeshVertex};
@@ -197,6 +198,53 @@ fn heights_strategy() -> impl Strategy<Value = (usize, usize, Vec<f32>, f64, u32
             let heights = u.iter().map(|v| ((v * 8.0).floor() * amp / 8.0) as f32).collect();
             (w, h, heights, err, leaf)
         })
+}
+
+/// A bintree triangle's sag from its level's shape is the sag worked out
+/// from its own corners (smallest enclosing circle, planar slope).
+#[test]
+fn sag_from_the_level_shape_is_the_sag_of_the_triangle() {
+    let sag = Sag { curvature: [1.6e-7, 3.1e-8], spacing: [74.2, 92.6] };
+    let direct = |c: &[MeshVertex; 3]| {
+        let p = c.map(|v| [v.x * 74.2, v.z * 92.6, v.h]);
+        let d = |a: usize, b: usize| [0, 1, 2].map(|k| p[b][k] - p[a][k]);
+        let (u, v, w) = (d(0, 1), d(0, 2), d(1, 2));
+        let l2 = |e: [f64; 3]| e[0] * e[0] + e[1] * e[1];
+        let (a2, b2, c2) = (l2(u), l2(v), l2(w));
+        let longest = a2.max(b2).max(c2);
+        // Circumradius from the sides: R = abc / (4 · area).
+        let area = (u[0] * v[1] - u[1] * v[0]).abs() / 2.0;
+        let r2 = if 2.0 * longest >= a2 + b2 + c2 { longest / 4.0 } else { a2 * b2 * c2 / (16.0 * area * area) };
+        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let slope = (n[0] * n[0] + n[1] * n[1]).sqrt() / n[2].abs();
+        crate::geodesy::Globe::margin_m(sag.curvature, r2, slope)
+    };
+    let mut checked = 0;
+    for c in [2u32, 4, 16, 64] {
+        let h = c / 2;
+        for square in [false, true] {
+            let first = |m: P| sag.shape(&split_at(c, square, m).into_iter().flatten().next().unwrap());
+            let shapes = if square { [first((h, h)); 2] } else { [first((h, 0)), first((0, h))] };
+            let places = if square {
+                [(h, h), (3 * h, h), (5 * h, 5 * h), (3 * h, 7 * h)]
+            } else {
+                [(h, 2 * c), (3 * h, c), (2 * c, 3 * h), (4 * c, 5 * h)]
+            };
+            for m in places {
+                let shape = shapes[shape_of(c, square, m)];
+                for t in split_at(c, square, m).into_iter().flatten() {
+                    let corners = [t.a, t.b, t.r].map(|p| {
+                        let h = f64::from(p.0 * 7 % 13) * 11.5 - f64::from(p.1 % 5) * 40.0;
+                        MeshVertex { x: f64::from(p.0), z: f64::from(p.1), h, ph: h }
+                    });
+                    let (got, want) = (sag.of_triangle(&shape, &corners), direct(&corners));
+                    assert!((got - want).abs() <= 1e-12 * want, "c {c}, {m:?}, square {square}: {got} against {want}");
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked > 40);
 }
 
 proptest! {
