@@ -138,19 +138,32 @@ impl Globe {
     /// at the grid centre shifted so that the centre keeps its flat place)
     /// of grid point (`j`, `i`) at ellipsoidal height `h`; NaN where the
     /// projection has no inverse there.
-    #[inline]
     pub fn world(&self, j: f64, i: f64, h: f64) -> [f64; 3] {
-        let enu = match self.at_sample(j, i) {
-            Some((row, col)) => {
-                // ECEF (x, y, z) = ((N + h) cos φ (cos λ, sin λ), (N(1 − e²) + h) sin φ).
-                let (across, z) = (row.n_cos + h * row.cos, row.n_sin + h * row.sin);
-                [0, 1, 2].map(|k| across * col.rotated[k] + z * self.frame_z[k] - self.rotated_origin[k])
-            }
+        match self.at_sample(j, i) {
+            Some((row, col)) => self.world_from(row, col, h),
             None => {
                 let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
-                self.frame.enu(ecef(lat, lon, h))
+                let enu = self.frame.enu(ecef(lat, lon, h));
+                [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
             }
-        };
+        }
+    }
+
+    /// [`Globe::world`] of sample (`j`, `i`), the same bits, without
+    /// testing that the place is a sample.
+    #[inline]
+    pub fn world_at_sample(&self, j: u32, i: u32, h: f64) -> [f64; 3] {
+        match (self.rows.get(i as usize), self.cols.get(j as usize)) {
+            (Some(row), Some(col)) => self.world_from(row, col, h),
+            _ => self.world(f64::from(j), f64::from(i), h),
+        }
+    }
+
+    #[inline]
+    fn world_from(&self, row: &Row, col: &Col, h: f64) -> [f64; 3] {
+        // ECEF (x, y, z) = ((N + h) cos φ (cos λ, sin λ), (N(1 − e²) + h) sin φ).
+        let (across, z) = (row.n_cos + h * row.cos, row.n_sin + h * row.sin);
+        let enu = [0, 1, 2].map(|k| across * col.rotated[k] + z * self.frame_z[k] - self.rotated_origin[k]);
         [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
     }
 

@@ -236,7 +236,7 @@ pub(super) struct OnGlobe {
 impl ParentSurface for OnGlobe {
     fn own(globe: Option<(&Globe, [f64; 2])>, p: P, h: f64) -> OnGlobe {
         let (g, _) = globe.expect("the curved frame carries its globe");
-        OnGlobe { h, p: g.world(f64::from(p.0), f64::from(p.1), h), shared: true }
+        OnGlobe { h, p: g.world_at_sample(p.0, p.1, h), shared: true }
     }
     fn middle(a: OnGlobe, b: OnGlobe) -> OnGlobe {
         OnGlobe { h: (a.h + b.h) / 2.0, p: [0, 1, 2].map(|k| (a.p[k] + b.p[k]) / 2.0), shared: false }
