@@ -143,8 +143,7 @@ impl Globe {
             Some((row, col)) => self.world_from(row, col, h),
             None => {
                 let Some((lat, lon)) = self.lat_lon(j, i) else { return [f64::NAN; 3] };
-                let enu = self.frame.enu(ecef(lat, lon, h));
-                [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
+                self.placed(self.frame.enu(ecef(lat, lon, h)))
             }
         }
     }
@@ -163,8 +162,25 @@ impl Globe {
     fn world_from(&self, row: &Row, col: &Col, h: f64) -> [f64; 3] {
         // ECEF (x, y, z) = ((N + h) cos φ (cos λ, sin λ), (N(1 − e²) + h) sin φ).
         let (across, z) = (row.n_cos + h * row.cos, row.n_sin + h * row.sin);
-        let enu = [0, 1, 2].map(|k| across * col.rotated[k] + z * self.frame_z[k] - self.rotated_origin[k]);
+        self.placed([0, 1, 2].map(|k| across * col.rotated[k] + z * self.frame_z[k] - self.rotated_origin[k]))
+    }
+
+    /// World position of a point at `enu` in the frame at the grid centre.
+    #[inline]
+    fn placed(&self, enu: [f64; 3]) -> [f64; 3] {
         [self.centre[0] + enu[0], enu[2], self.centre[1] - enu[1]]
+    }
+
+    /// Unit east, north and up at grid point (`j`, `i`), in ECEF; NaN
+    /// where the projection has no inverse there.
+    fn local_axes(&self, j: f64, i: f64) -> [[f64; 3]; 3] {
+        match self.at_sample(j, i) {
+            Some((row, col)) => {
+                let (sp, cp, sl, cl) = (row.sin, row.cos, col.sin, col.cos);
+                [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
+            }
+            None => self.lat_lon(j, i).map_or([[f64::NAN; 3]; 3], |(lat, lon)| EnuFrame::new(lat, lon).axes),
+        }
     }
 
     /// The row's and column's tables where (`j`, `i`) is a sample of a grid
@@ -183,16 +199,7 @@ impl Globe {
     /// The east, up and south unit vectors at grid point (`j`, `i`), in
     /// world coordinates: what a flat-frame normal is expressed in there.
     pub fn axes(&self, j: f64, i: f64) -> [[f64; 3]; 3] {
-        let local = match self.at_sample(j, i) {
-            Some((row, col)) => {
-                let (sp, cp, sl, cl) = (row.sin, row.cos, col.sin, col.cos);
-                [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
-            }
-            None => {
-                let Some((lat, lon)) = self.lat_lon(j, i) else { return [[f64::NAN; 3]; 3] };
-                EnuFrame::new(lat, lon).axes
-            }
-        };
+        let local = self.local_axes(j, i);
         let world = |v: [f64; 3]| {
             let [e, n, u] = self.frame.axes.map(|a| a[0] * v[0] + a[1] * v[1] + a[2] * v[2]);
             [e, u, -n]
@@ -208,16 +215,7 @@ impl Globe {
     /// once. Both turns are orthonormal, so the length stays 1 without a
     /// square root.
     pub fn turn_normal(&self, j: f64, i: f64, n: [f32; 3]) -> [f32; 3] {
-        let [east, north, up] = match self.at_sample(j, i) {
-            Some((row, col)) => {
-                let (sp, cp, sl, cl) = (row.sin, row.cos, col.sin, col.cos);
-                [[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]]
-            }
-            None => {
-                let Some((lat, lon)) = self.lat_lon(j, i) else { return [f32::NAN; 3] };
-                EnuFrame::new(lat, lon).axes
-            }
-        };
+        let [east, north, up] = self.local_axes(j, i);
         let [e, u, s] = n.map(f64::from);
         let q = [0, 1, 2].map(|c| e * east[c] + u * up[c] - s * north[c]);
         let [x, y, z] = self.frame.axes.map(|a| a[0] * q[0] + a[1] * q[1] + a[2] * q[2]);
