@@ -554,6 +554,20 @@ fn a_grid_touching_the_pole_builds_places_and_verifies() {
     crate::common::verified_against(&out, &[dem]);
 }
 
+#[test]
+fn a_whole_globe_grid_of_degrees_builds_and_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    // One sample per degree, −180° to 180° and pole to pole (as ETOPO's
+    // grids are laid out): its equator spans the whole circumference,
+    // 40 075 km, which the extent check once took for a wrong spacing.
+    let dem = geographic_asc(tmp.path(), "globe", (361, 181), (-180.0, -90.0), 1.0);
+    let (_t, out, _) = build_ok(&dem, 1.0);
+    let ts = tileset(&out);
+    let p = &ts["extras"]["terrachunk"]["placement"];
+    assert!(p["lat_deg"].as_f64().unwrap().abs() < 1e-9 && p["lon_deg"].as_f64().unwrap().abs() < 1e-9, "{p}");
+    crate::common::verified_against(&out, &[dem]);
+}
+
 /// Every surface vertex of every leaf of a curved tileset of a geographic
 /// ASCII grid (`west`, `north` the centre of sample (0, 0), `cell`
 /// degrees), taken to ECEF as a client does (node translation + POSITION,

@@ -255,10 +255,12 @@ pub fn build(opts: &BuildOptions) -> Result<Report, BuildError> {
     Ok(report)
 }
 
-/// The widest a grid may span on either axis, metres: about the Earth's
-/// circumference. A wider grid is no terrain (its spacing is wrong), and
-/// its positions would lose metres in f32 and its geometric errors overflow.
-pub const MAX_EXTENT_M: f64 = 4.0e7;
+/// The widest a grid may span on either axis, metres: a little over the
+/// Earth's equatorial circumference (40 075 017 m), which a whole-globe
+/// grid of degrees spans from −180° to 180°. A wider grid is no terrain
+/// (its spacing is wrong), and its positions would lose metres in f32 and
+/// its geometric errors overflow.
+pub const MAX_EXTENT_M: f64 = 4.01e7;
 
 /// The geoid model's name, length and hash for the extras.
 fn geoid_file(opts: &BuildOptions) -> Result<Option<SourceFile>, BuildError> {
