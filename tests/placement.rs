@@ -568,6 +568,34 @@ fn a_whole_globe_grid_of_degrees_builds_and_verifies() {
     crate::common::verified_against(&out, &[dem]);
 }
 
+#[test]
+fn a_curved_grid_wider_than_a_hemisphere_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 240° of longitude: the root chunk's far columns lie more than 90°
+    // from its middle, where the ground's up points below the chunk's
+    // horizon and a longitude taken within half a turn of the grid's first
+    // column lands on the wrong side.
+    let dem = geographic_asc(tmp.path(), "wide", (241, 121), (-120.0, -60.0), 1.0);
+    let (_t, out, report) = build_ok(&dem, 1.0);
+    assert_eq!(report.frame, terrachunk::geodesy::FrameKind::Curved);
+    let r = crate::common::verified_against(&out, &[dem]);
+    assert!(r.curved);
+}
+
+#[test]
+fn a_grid_once_round_the_earth_stays_planar_and_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    // −180° to 180° without a pole: its first and last columns are one
+    // meridian, which a curved file could not tell apart again.
+    let dem = geographic_asc(tmp.path(), "round", (361, 161), (-180.0, -80.0), 1.0);
+    let (_t, out, report) = build_ok(&dem, 1.0);
+    assert_eq!(report.frame, terrachunk::geodesy::FrameKind::Flat);
+    crate::common::verified_against(&out, std::slice::from_ref(&dem));
+    let refused = tmp.path().join("refused");
+    let (d, o) = (dem.to_str().unwrap(), refused.to_str().unwrap());
+    crate::common::assert_bad_input(&["build", d, "-o", o, "--frame", "curved"], &refused, "once round the Earth");
+}
+
 /// Every surface vertex of every leaf of a curved tileset of a geographic
 /// ASCII grid (`west`, `north` the centre of sample (0, 0), `cell`
 /// degrees), taken to ECEF as a client does (node translation + POSITION,

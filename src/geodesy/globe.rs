@@ -97,6 +97,9 @@ impl Globe {
         if globe.source.geographic && lat_edges.iter().any(|l| l.abs() >= 90.0 - 1e-9) {
             return Err(NotPlaced::AtPole { name });
         }
+        if globe.source.geographic && (width - 1) as f64 * globe.step[0].abs() >= 360.0 - 1e-9 {
+            return Err(NotPlaced::WholeTurn { name });
+        }
         for (i, j) in probe_samples(width, height) {
             if globe.lat_lon(j as f64, i as f64).is_none() {
                 return Err(off());

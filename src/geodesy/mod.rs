@@ -231,6 +231,14 @@ pub enum NotPlaced {
         /// `EPSG:code`, or where the definition came from.
         name: String,
     },
+    /// A grid of degrees whose columns go once round the Earth: its first
+    /// and last columns are one meridian, whose vertices, written curved,
+    /// could not be told apart again.
+    #[error("{name}: the grid's columns go once round the Earth, its first and last on one meridian")]
+    WholeTurn {
+        /// `EPSG:code`, or where the definition came from.
+        name: String,
+    },
     /// The grid centre does not come back as a point on the Earth.
     #[error("{name} puts the grid centre ({x}, {y}) nowhere on the Earth")]
     OffTheEarth {

@@ -326,7 +326,8 @@ impl Report {
             format!(
                 "warning: the tileset is planar, and a 3D Tiles client draws it up to {:.1} m off the ellipsoid \
                  (row {}, column {}), more than the leaf δ {leaf} m: a grid this large needs the curved frame \
-                 (--frame curved, with --mesher rtin and --compress none)",
+                 (--frame curved, with --mesher rtin and --compress none; a grid of degrees must reach no pole \
+                 and span less than 360° of longitude)",
                 e.worst_m(),
                 e.at[0],
                 e.at[1]

@@ -40,7 +40,12 @@ pub(super) fn not_finite(c: &ChunkFile) -> Vec<String> {
 /// seen from above; `turned_over` finds the ones that do not), so a normal
 /// that agrees with the triangles it belongs to has a positive y; skirt
 /// vertices carry their top vertex's normal.
-pub(super) fn normals(c: &ChunkFile, problems: &mut Vec<String>) {
+///
+/// `up`, given for the curved frame, is the ellipsoid's up at a written
+/// position, in the chunk's axes: there a heightfield faces away from the
+/// Earth, which is the chunk's y only near its middle (a chunk more than a
+/// hemisphere wide holds vertices whose up points below its horizon).
+pub(super) fn normals(c: &ChunkFile, up: Option<&dyn Fn([f64; 3]) -> [f64; 3]>, problems: &mut Vec<String>) {
     let tolerance = if c.quantization_m.is_some() { 0.02 } else { 1e-3 };
     for (role, p) in std::iter::once(("surface", &c.surface)).chain(c.skirt.as_ref().map(|s| ("skirt", s))) {
         if p.normals.len() != p.positions.len() {
@@ -48,11 +53,15 @@ pub(super) fn normals(c: &ChunkFile, problems: &mut Vec<String>) {
             continue;
         }
         let (mut bad, mut down) = (0, 0);
-        for n in &p.normals {
+        for (n, pos) in p.normals.iter().zip(&p.positions) {
             let len = n.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
+            let upward = match up {
+                None => f64::from(n[1]),
+                Some(up) => up(*pos).iter().zip(n).map(|(u, v)| u * f64::from(*v)).sum(),
+            };
             if !(len - 1.0).abs().le(&tolerance) {
                 bad += 1;
-            } else if f64::from(n[1]) < -tolerance {
+            } else if upward < -tolerance {
                 down += 1;
             }
         }

@@ -70,13 +70,30 @@ impl Curved {
         [0, 1, 2].map(|r| t[r] * p[0] + t[4 + r] * p[1] + t[8 + r] * p[2] + t[12 + r])
     }
 
-    /// Grid column, row and ellipsoidal height of an ECEF point.
-    fn grid_of(&self, e: [f64; 3]) -> Option<[f64; 3]> {
+    /// The ellipsoid's up at a world (glTF y-up) position, in the same
+    /// axes: the root transform's rotation taken back (its columns are
+    /// orthonormal, east-north-up at the grid's centre).
+    pub(super) fn up_at(&self, w: [f64; 3]) -> [f64; 3] {
+        let (lat, lon, _) = geodetic(self.ecef(w));
+        let u = up(lat, lon);
+        let t = &self.transform;
+        let col = |c: usize| t[4 * c] * u[0] + t[4 * c + 1] * u[1] + t[4 * c + 2] * u[2];
+        let (x, y, z) = (col(0), col(1), col(2));
+        let len = (x * x + y * y + z * z).sqrt();
+        [x / len, z / len, -y / len]
+    }
+
+    /// Grid column, row and ellipsoidal height of an ECEF point of the chunk
+    /// whose middle column is `middle`.
+    fn grid_of(&self, e: [f64; 3], middle: f64) -> Option<[f64; 3]> {
         let (lat, lon, h) = geodetic(e);
         let mut src = self.source.from_wgs84(lat, lon)?;
         if self.source.geographic {
-            // The same meridian as the grid's, across the antimeridian too.
-            src[0] = self.origin[0] + (src[0] - self.origin[0] + 180.0).rem_euclid(360.0) - 180.0;
+            // The longitude within half a turn of the chunk's middle, across
+            // the antimeridian too: a grid of degrees may be wider than half
+            // a turn, a chunk no wider than a turn.
+            let mid = self.origin[0] + self.step[0] * middle;
+            src[0] = mid + (src[0] - mid + 180.0).rem_euclid(360.0) - 180.0;
         }
         Some([(src[0] - self.origin[0]) / self.step[0], (src[1] - self.origin[1]) / self.step[1], h])
     }
@@ -99,12 +116,14 @@ impl Curved {
         let mut targets = Vec::new();
         let rounding_m = std::iter::once(&c.surface).chain(&c.skirt).map(rounding).fold(0.0, f64::max);
         let snap = 1e-6 + 4.0 * rounding_m / self.spacing[0].min(self.spacing[1]);
+        let middle = f64::from(c.footprint[0] + c.footprint[1]) / 2.0;
         for (written, prim, is_surface) in std::iter::once((&c.surface, &mut flat.surface, true))
             .chain(c.skirt.iter().zip(flat.skirt.as_mut()).map(|(w, f)| (w, f, false)))
         {
             for (k, p) in written.positions.iter().enumerate() {
                 let e = self.ecef(*p);
-                let [j, i, h] = self.grid_of(e).ok_or_else(|| format!("a vertex at {p:?} is nowhere on the grid"))?;
+                let [j, i, h] =
+                    self.grid_of(e, middle).ok_or_else(|| format!("a vertex at {p:?} is nowhere on the grid"))?;
                 let whole = |v: f64| if (v - v.round()).abs() <= snap { v.round() } else { v };
                 prim.positions[k] = [whole(j) * self.spacing[0], h, whole(i) * self.spacing[1]];
                 if is_surface {
