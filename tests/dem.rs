@@ -1200,3 +1200,41 @@ fn write_deflate_geographic_i16(
     e.write_tag(Tag::GdalNodata, "-32768").unwrap();
     img.write_data(data).unwrap();
 }
+
+/// A 20 × 10 float GeoTIFF in UTM 10N placed by a ModelTransformation.
+fn write_transformed_tif(path: &Path, matrix: [f64; 16]) {
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+    let (w, h) = (20u32, 10u32);
+    let data: Vec<f32> = (0..w * h).map(|k| 100.0 + (k % w) as f32).collect();
+    let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(w, h).unwrap();
+    let e = img.encoder();
+    e.write_tag(Tag::ModelTransformationTag, &matrix[..]).unwrap();
+    e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32610][..])
+        .unwrap();
+    img.write_data(&data).unwrap();
+}
+
+#[test]
+fn a_geotiff_turned_against_its_crs_is_refused_not_placed_north_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 10 m cells turned by about 6°: read north-up, the far corner would
+    // land 20 m from where the file puts it.
+    let turned = tmp.path().join("turned.tif");
+    let (c, s) = (10.0 * 6f64.to_radians().cos(), 10.0 * 6f64.to_radians().sin());
+    write_transformed_tif(
+        &turned,
+        [c, s, 0.0, 500_000.0, s, -c, 0.0, 5_000_000.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    );
+    assert_fails(load1(&turned), "Unsupported", "turned.tif", "north-up");
+    // Rounding in the matrix's turn terms is read as north-up.
+    let straight = tmp.path().join("straight.tif");
+    write_transformed_tif(
+        &straight,
+        [10.0, 1e-12, 0.0, 500_000.0, -1e-12, -10.0, 0.0, 5_000_000.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    );
+    let hf = ok(&straight);
+    assert_eq!(hf.georef.step, [10.0, -10.0]);
+    assert_eq!(hf.georef.origin, [500_005.0, 4_999_995.0]);
+}

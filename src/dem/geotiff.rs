@@ -565,8 +565,23 @@ fn raw_georef<R: std::io::Read + std::io::Seek>(
     let (sx, sy, ti, tj, tx, ty) = match (scale, tie, transform) {
         (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => (s[0], s[1], t[0], t[1], t[3], t[4]),
         (_, _, Some(m)) if m.len() >= 16 => {
-            // Rotation terms are ignored: the grid stays a grid; the spacing
-            // is the length of each raster axis in model units.
+            // A grid turned or sheared against its CRS would be placed
+            // wrongly as a north-up one: refused where the turn moves its far
+            // corner by half a cell or more, ignored below that (rounding
+            // in the file's matrix).
+            let (w, h) = dec.dimensions().map_err(err)?;
+            let (cols, rows) = (f64::from(w.max(1) - 1), f64::from(h.max(1) - 1));
+            if m[1].abs() * rows >= 0.5 * m[0].abs() || m[4].abs() * cols >= 0.5 * m[5].abs() {
+                return Err(unsupported(
+                    path,
+                    format!(
+                        "its ModelTransformation turns the grid against its coordinate system \
+                         ([{}, {}; {}, {}]): terrachunk reads north-up grids; warp it north-up first \
+                         (gdalwarp)",
+                        m[0], m[1], m[4], m[5]
+                    ),
+                ));
+            }
             let sx = m[0].hypot(m[4]) * if m[0] < 0.0 { -1.0 } else { 1.0 };
             let sy = m[1].hypot(m[5]) * if m[5] > 0.0 { -1.0 } else { 1.0 };
             (sx, sy, 0.0, 0.0, m[3], m[7])
