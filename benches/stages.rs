@@ -103,7 +103,7 @@ fn stages(c: &mut Criterion) {
         normals: NormalEncoding::Rounded,
     };
     for n in SIZES {
-        let part = assemble(&grid(&hf), hf.spacing_m, &chunk(&hf, n), 4.0 * DELTA_M, None);
+        let part = assemble(&grid(&hf), hf.spacing_m, &chunk(&hf, n), 4.0 * DELTA_M, None, false);
         g.throughput(Throughput::Elements(part.surface.triangle_count() as u64));
         g.bench_with_input(BenchmarkId::from_parameter(format!("{n}x{n}")), &part, |b, part| {
             b.iter(|| encode_glb(black_box(part), None, &ctx).expect("f32 output"))

@@ -17,6 +17,10 @@ pub struct Part {
     /// Where on the grid each vertex is, metres (column · s_x, row · s_z),
     /// in the curved frame only (empty: the positions' own x and z).
     pub plan_m: Vec<[f64; 2]>,
+    /// The grid's x axis at each vertex, in the curved frame with a normal
+    /// map only, whose `normals` are then the ground's up there (empty: x
+    /// and y, the flat frame's axes).
+    pub tangents: Vec<[f32; 3]>,
     /// Triangles, counter-clockwise seen from above (+y).
     pub indices: Vec<u32>,
 }
@@ -53,6 +57,7 @@ impl Part {
             morph_dy: pick(&self.morph_dy, order),
             morph_dxz: pick(&self.morph_dxz, order),
             plan_m: pick(&self.plan_m, order),
+            tangents: pick(&self.tangents, order),
             indices,
         }
     }
@@ -68,6 +73,9 @@ impl Part {
         }
         if !from.plan_m.is_empty() {
             self.plan_m.push(from.plan_m[k]);
+        }
+        if !from.tangents.is_empty() {
+            self.tangents.push(from.tangents[k]);
         }
     }
 }

@@ -596,6 +596,46 @@ fn a_grid_once_round_the_earth_stays_planar_and_verifies() {
     crate::common::assert_bad_input(&["build", d, "-o", o, "--frame", "curved"], &refused, "once round the Earth");
 }
 
+#[test]
+fn a_curved_normal_mapped_tileset_has_the_grounds_up_for_its_vertex_normals() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 60° × 40°: at the sides the ground's up is 30° from the grid centre's,
+    // the axes every chunk is written in.
+    let dem = geographic_asc(tmp.path(), "wide", (121, 81), (-30.0, -20.0), 0.5);
+    let out = tmp.path().join("out");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--normal-map", "--max-error", "20"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ts = tileset(&out);
+    assert_eq!(ts["extras"]["terrachunk"]["placement"]["frame"], "curved");
+    crate::common::verified_against(&out, &[dem]);
+    crate::common::khronos_validate(&out);
+    let (mut worst, mut n) = (1.0f64, 0);
+    let mut stack = vec![&ts["root"]];
+    while let Some(tile) = stack.pop() {
+        if let Some(uri) = tile["content"]["uri"].as_str() {
+            let c = terrachunk::verify::read_chunk(&out.join(uri)).unwrap();
+            for (p, nv) in c.surface.positions.iter().zip(&c.surface.normals) {
+                let e = apply(&ts, [p[0], -p[2], p[1]]);
+                let [x, y, z] = nv.map(f64::from);
+                let (tip, base) = (apply(&ts, [x, -z, y]), apply(&ts, [0.0; 3]));
+                let d = [0, 1, 2].map(|r| tip[r] - base[r]);
+                let (lat, lon) = wgs84_of_ecef(e);
+                let (sp, cp) = lat.to_radians().sin_cos();
+                let (sl, cl) = lon.to_radians().sin_cos();
+                let up = [cp * cl, cp * sl, sp];
+                worst = worst.min((d[0] * up[0] + d[1] * up[1] + d[2] * up[2]) / distance(d, [0.0; 3]));
+                n += 1;
+            }
+        }
+        stack.extend(tile["children"].as_array().into_iter().flatten());
+    }
+    assert!(
+        n > 1000 && worst > 0.99999,
+        "{n} normals, the worst {:.3}° from the ground's up",
+        worst.acos().to_degrees()
+    );
+}
+
 /// Every surface vertex of every leaf of a curved tileset of a geographic
 /// ASCII grid (`west`, `north` the centre of sample (0, 0), `cell`
 /// degrees), taken to ECEF as a client does (node translation + POSITION,

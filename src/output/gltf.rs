@@ -119,9 +119,17 @@ pub fn encode_glb(chunk: &Chunk, texture: Option<&TextureTile>, ctx: &GlbContext
             };
             PrimData {
                 part: p,
-                normals: if normal_map.is_some() { vec![[0.0, 1.0, 0.0]; n] } else { p.normals.clone() },
+                // In the flat frame the map's axes are the chunk's own; the
+                // curved frame turns them per vertex (`Part::tangents`).
+                normals: match normal_map {
+                    Some(_) if p.tangents.is_empty() => vec![[0.0, 1.0, 0.0]; n],
+                    _ => p.normals.clone(),
+                },
                 uv: texture.map(|t| uv(&t.colour)),
-                tangents: normal_map.map(|_| vec![[1.0, 0.0, 0.0, 1.0]; n]),
+                tangents: normal_map.map(|_| match p.tangents.is_empty() {
+                    true => vec![[1.0, 0.0, 0.0, 1.0]; n],
+                    false => p.tangents.iter().map(|&[x, y, z]| [x, y, z, 1.0]).collect(),
+                }),
                 uv1: texture.and_then(|t| t.normal.as_ref().filter(|nm| nm.texels != t.colour.texels)).map(uv),
             }
         })

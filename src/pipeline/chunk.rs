@@ -38,7 +38,7 @@ impl Run<'_> {
         let margin = self.tree.delta_m[(key.level as usize).saturating_sub(2)];
         let chunk = Chunk {
             delta_m: self.tree.delta_m[key.level as usize],
-            ..assemble(self.grid, self.hf.spacing_m, &mesh, margin, self.globe)
+            ..assemble(self.grid, self.hf.spacing_m, &mesh, margin, self.globe, self.opts.config.normal_map)
         };
         Timers::add(&self.timers.skirt_morph, t);
         Ok((mesh, chunk))
@@ -137,9 +137,18 @@ impl Run<'_> {
 /// (world f64, DEM normals), each with its morph target (the parent
 /// surface's height, as a y delta), and skirts hanging from its borders,
 /// whose top vertices carry the surface's morph deltas; with a `globe`,
-/// then moved into the curved frame ([`bend`]). Public for the `.glb`
+/// then moved into the curved frame ([`bend`]; with a `normal_map`, each
+/// vertex's normal the ground's up and its tangent the grid's x axis, the
+/// frame the map's normals are given in). Public for the `.glb`
 /// micro-benchmark (`benches/stages.rs`).
-pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64, globe: Option<&Globe>) -> Chunk {
+pub fn assemble(
+    grid: &Grid,
+    spacing: [f64; 2],
+    mesh: &ChunkMesh,
+    margin_m: f64,
+    globe: Option<&Globe>,
+    normal_map: bool,
+) -> Chunk {
     let (used, indices) = written(mesh);
     let ((x0, x1), (z0, z1)) = mesh.footprint;
     let side = (x1 - x0).max(z1 - z0);
@@ -177,7 +186,7 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
         skirt,
     };
     if let Some(globe) = globe {
-        bend(&mut chunk, &targets, &hangs, globe, spacing);
+        bend(&mut chunk, &targets, &hangs, globe, spacing, normal_map);
     }
     chunk
 }
@@ -191,14 +200,27 @@ pub fn assemble(grid: &Grid, spacing: [f64; 2], mesh: &ChunkMesh, margin_m: f64,
 /// [`build_skirt`] gives them) take their surface vertex's place, normal
 /// and delta, bottoms its normal and delta 0, as in the flat frame; a
 /// bottom hangs along the normal.
-fn bend(chunk: &mut Chunk, targets: &[ParentPoint], hangs: &[Hang], globe: &Globe, spacing: [f64; 2]) {
+fn bend(
+    chunk: &mut Chunk,
+    targets: &[ParentPoint],
+    hangs: &[Hang],
+    globe: &Globe,
+    spacing: [f64; 2],
+    normal_map: bool,
+) {
     let surface = &mut chunk.surface;
     let mut deltas = Vec::with_capacity(surface.positions.len());
     for (k, &(j, i)) in chunk.surface_grid.iter().enumerate() {
         // A vertex the parent has too was placed once, for both.
         let target = targets[k];
         let p = if target.shared { target.at } else { globe.world(j, i, surface.positions[k][1]) };
-        surface.normals[k] = globe.turn_normal(j, i, surface.normals[k]);
+        if normal_map {
+            // The map's normals are given against the grid's up and x axis.
+            surface.normals[k] = globe.turn_normal(j, i, [0.0, 1.0, 0.0]);
+            surface.tangents.push(globe.turn_normal(j, i, [1.0, 0.0, 0.0]));
+        } else {
+            surface.normals[k] = globe.turn_normal(j, i, surface.normals[k]);
+        }
         deltas.push([0, 1, 2].map(|a| target.at[a] - p[a]));
         surface.positions[k] = p;
     }
@@ -215,6 +237,9 @@ fn bend(chunk: &mut Chunk, targets: &[ParentPoint], hangs: &[Hang], globe: &Glob
         let (j, i) = chunk.surface_grid[s];
         skirt.positions[k] = if top { surface.positions[s] } else { globe.world(j, i, skirt.positions[k][1]) };
         skirt.normals[k] = surface.normals[s];
+        if normal_map {
+            skirt.tangents.push(surface.tangents[s]);
+        }
         skirt.plan_m.push(surface.plan_m[s]);
         let d = if top { deltas[s] } else { [0.0; 3] };
         skirt.morph_dy[k] = d[1];

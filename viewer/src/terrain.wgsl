@@ -96,8 +96,11 @@ fn shade(in: VOut) -> vec4<f32> {
     if (frame.flags.y > 0.5) {
         var n = normalize(in.normal);
         if (chunk.opts.y > 0.5) {
-            // Tangent frame T = +x, B = north (−z), N = +y (the vertex normal is +y).
-            n = normalize(vec3<f32>(tn.x, tn.z, -tn.y));
+            // Tangent frame from the vertex: N its normal (+y in the flat
+            // frame, the ground's up in the curved one), T the chunk's +x
+            // made perpendicular to it, B = N × T (north, −z when flat).
+            let t = normalize(vec3<f32>(1.0, 0.0, 0.0) - n * n.x);
+            n = normalize(t * tn.x + cross(n, t) * tn.y + n * tn.z);
         }
         // One-sided: a face turned away from the sun gets the ambient term only.
         let diffuse = max(dot(n, frame.sun.xyz), 0.0);

@@ -366,7 +366,7 @@ mod tests {
                 let grandchildren: Vec<_> = tree.children(child).into_iter().map(|g| mesh(g, Some(&m))).collect();
                 for m in std::iter::once(&m).chain(&grandchildren) {
                     let delta = m.delta_m;
-                    let chunk = crate::pipeline::assemble(&grid, hf.spacing_m, m, delta, None);
+                    let chunk = crate::pipeline::assemble(&grid, hf.spacing_m, m, delta, None, false);
                     let exact = q.cut_error(&chunk, &grid, -1.0).unwrap();
                     if on_grid {
                         assert!(exact <= delta, "{:?}: {exact} m as written, δ {delta}", m.key);
