@@ -376,6 +376,20 @@ fn verify_rejects_normals_that_are_nan_or_negated() {
 }
 
 #[test]
+fn verify_rejects_a_normal_mapped_chunk_whose_normals_are_not_the_ground_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = write_asc(tmp.path(), "hill.asc", 65, 65, ground);
+    let out = tmp.path().join("out");
+    let o = cli(&["build", dem.to_str().unwrap(), "-o", out.to_str().unwrap(), "--normal-map", "--max-error", "0.5"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    crate::common::verified(&out);
+    // Tilted 10° east: the map's relief would be lit 10° off.
+    let (s, c) = 10f32.to_radians().sin_cos();
+    edit_normals(&out.join("tiles/0/0/0.glb"), |n| [n[0] * c + n[1] * s, n[1] * c - n[0] * s, n[2]]);
+    fails_naming(&out, "0/0/0", "normals are not the ground's up");
+}
+
+#[test]
 fn verify_rejects_positions_that_are_not_finite() {
     let (_t, out, _) = built(Compress::None);
     poison_positions(&out.join("tiles/1/1/0.glb"), 1, f32::INFINITY);

@@ -39,7 +39,8 @@ pub(super) fn not_finite(c: &ChunkFile) -> Vec<String> {
 /// rounds to y = 0). Every written triangle faces up (a heightfield
 /// seen from above; `turned_over` finds the ones that do not), so a normal
 /// that agrees with the triangles it belongs to has a positive y; skirt
-/// vertices carry their top vertex's normal.
+/// vertices carry their top vertex's normal. With a normal map, every
+/// normal is the up itself, within the same rounding.
 ///
 /// `up`, given for the curved frame, is the ellipsoid's up at a written
 /// position, in the chunk's axes: there a heightfield faces away from the
@@ -47,12 +48,15 @@ pub(super) fn not_finite(c: &ChunkFile) -> Vec<String> {
 /// hemisphere wide holds vertices whose up points below its horizon).
 pub(super) fn normals(c: &ChunkFile, up: Option<&dyn Fn([f64; 3]) -> [f64; 3]>, problems: &mut Vec<String>) {
     let tolerance = if c.quantization_m.is_some() { 0.02 } else { 1e-3 };
+    // A normal map's normals are given against the ground's up: every
+    // vertex normal must be that up.
+    let mapped = c.texture.as_ref().is_some_and(|t| t.normal.is_some());
     for (role, p) in std::iter::once(("surface", &c.surface)).chain(c.skirt.as_ref().map(|s| ("skirt", s))) {
         if p.normals.len() != p.positions.len() {
             problems.push(format!("{role}: {} normals for {} vertices", p.normals.len(), p.positions.len()));
             continue;
         }
-        let (mut bad, mut down) = (0, 0);
+        let (mut bad, mut down, mut tilted) = (0, 0, 0);
         for (n, pos) in p.normals.iter().zip(&p.positions) {
             let len = n.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
             let upward = match up {
@@ -63,7 +67,12 @@ pub(super) fn normals(c: &ChunkFile, up: Option<&dyn Fn([f64; 3]) -> [f64; 3]>, 
                 bad += 1;
             } else if upward < -tolerance {
                 down += 1;
+            } else if mapped && upward < 1.0 - tolerance {
+                tilted += 1;
             }
+        }
+        if tilted > 0 {
+            problems.push(format!("{role}: {tilted} normals are not the ground's up, the normal map's tangent frame"));
         }
         if bad > 0 {
             problems.push(format!("{role}: {bad} normals are not finite unit vectors"));
