@@ -42,26 +42,28 @@ pub(super) fn not_finite(c: &ChunkFile) -> Vec<String> {
 /// vertices carry their top vertex's normal. With a normal map, every
 /// normal is the up itself, within the same rounding.
 ///
-/// `up`, given for the curved frame, is the ellipsoid's up at a written
-/// position, in the chunk's axes: there a heightfield faces away from the
-/// Earth, which is the chunk's y only near its middle (a chunk more than a
-/// hemisphere wide holds vertices whose up points below its horizon).
-pub(super) fn normals(c: &ChunkFile, up: Option<&dyn Fn([f64; 3]) -> [f64; 3]>, problems: &mut Vec<String>) {
+/// `ups`, given for the curved frame, are the ellipsoid's up at each
+/// surface and skirt vertex, in the chunk's axes: there a heightfield faces
+/// away from the Earth, which is the chunk's y only near its middle (a
+/// chunk more than a hemisphere wide holds vertices whose up points below
+/// its horizon).
+pub(super) fn normals(c: &ChunkFile, ups: Option<&[Vec<[f64; 3]>; 2]>, problems: &mut Vec<String>) {
     let tolerance = if c.quantization_m.is_some() { 0.02 } else { 1e-3 };
     // A normal map's normals are given against the ground's up: every
     // vertex normal must be that up.
     let mapped = c.texture.as_ref().is_some_and(|t| t.normal.is_some());
-    for (role, p) in std::iter::once(("surface", &c.surface)).chain(c.skirt.as_ref().map(|s| ("skirt", s))) {
+    let prims = std::iter::once(("surface", &c.surface)).chain(c.skirt.as_ref().map(|s| ("skirt", s)));
+    for (k, (role, p)) in prims.enumerate() {
         if p.normals.len() != p.positions.len() {
             problems.push(format!("{role}: {} normals for {} vertices", p.normals.len(), p.positions.len()));
             continue;
         }
         let (mut bad, mut down, mut tilted) = (0, 0, 0);
-        for (n, pos) in p.normals.iter().zip(&p.positions) {
+        for (v, n) in p.normals.iter().enumerate() {
             let len = n.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
-            let upward = match up {
+            let upward = match ups {
                 None => f64::from(n[1]),
-                Some(up) => up(*pos).iter().zip(n).map(|(u, v)| u * f64::from(*v)).sum(),
+                Some(ups) => ups[k][v].iter().zip(n).map(|(u, c)| u * f64::from(*c)).sum(),
             };
             if !(len - 1.0).abs().le(&tolerance) {
                 bad += 1;

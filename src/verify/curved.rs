@@ -37,6 +37,9 @@ pub(crate) struct Curved {
 pub(crate) struct CurvedChunk {
     pub(super) surface: Vec<[f64; 3]>,
     pub(super) targets: Vec<[f64; 3]>,
+    /// The ellipsoid's up at each written vertex, in the chunk's axes: the
+    /// surface's, then the skirt's.
+    pub(super) ups: [Vec<[f64; 3]>; 2],
     pub(super) rounding_m: f64,
 }
 
@@ -70,11 +73,10 @@ impl Curved {
         [0, 1, 2].map(|r| t[r] * p[0] + t[4 + r] * p[1] + t[8 + r] * p[2] + t[12 + r])
     }
 
-    /// The ellipsoid's up at a world (glTF y-up) position, in the same
-    /// axes: the root transform's rotation taken back (its columns are
-    /// orthonormal, east-north-up at the grid's centre).
-    pub(super) fn up_at(&self, w: [f64; 3]) -> [f64; 3] {
-        let (lat, lon, _) = geodetic(self.ecef(w));
+    /// The ellipsoid's up at a latitude and longitude, in the chunks' (glTF
+    /// y-up) axes: the root transform's rotation taken back (its columns
+    /// are orthonormal, east-north-up at the grid's centre).
+    fn up_in_chunk(&self, lat: f64, lon: f64) -> [f64; 3] {
         let u = up(lat, lon);
         let t = &self.transform;
         let col = |c: usize| t[4 * c] * u[0] + t[4 * c + 1] * u[1] + t[4 * c + 2] * u[2];
@@ -83,10 +85,9 @@ impl Curved {
         [x / len, z / len, -y / len]
     }
 
-    /// Grid column, row and ellipsoidal height of an ECEF point of the chunk
-    /// whose middle column is `middle`.
-    fn grid_of(&self, e: [f64; 3], middle: f64) -> Option<[f64; 3]> {
-        let (lat, lon, h) = geodetic(e);
+    /// Grid column and row of a latitude and longitude in the chunk whose
+    /// middle column is `middle`.
+    fn grid_of(&self, lat: f64, lon: f64, middle: f64) -> Option<[f64; 2]> {
         let mut src = self.source.from_wgs84(lat, lon)?;
         if self.source.geographic {
             // The longitude within half a turn of the chunk's middle, across
@@ -95,7 +96,7 @@ impl Curved {
             let mid = self.origin[0] + self.step[0] * middle;
             src[0] = mid + (src[0] - mid + 180.0).rem_euclid(360.0) - 180.0;
         }
-        Some([(src[0] - self.origin[0]) / self.step[0], (src[1] - self.origin[1]) / self.step[1], h])
+        Some([(src[0] - self.origin[0]) / self.step[0], (src[1] - self.origin[1]) / self.step[1]])
     }
 
     /// The true ECEF position and ellipsoid normal of sample (`i`, `j`) at
@@ -117,13 +118,18 @@ impl Curved {
         let rounding_m = std::iter::once(&c.surface).chain(&c.skirt).map(rounding).fold(0.0, f64::max);
         let snap = 1e-6 + 4.0 * rounding_m / self.spacing[0].min(self.spacing[1]);
         let middle = f64::from(c.footprint[0] + c.footprint[1]) / 2.0;
-        for (written, prim, is_surface) in std::iter::once((&c.surface, &mut flat.surface, true))
+        let mut ups = [Vec::new(), Vec::new()];
+        for ((written, prim, is_surface), ups) in std::iter::once((&c.surface, &mut flat.surface, true))
             .chain(c.skirt.iter().zip(flat.skirt.as_mut()).map(|(w, f)| (w, f, false)))
+            .zip(&mut ups)
         {
             for (k, p) in written.positions.iter().enumerate() {
                 let e = self.ecef(*p);
-                let [j, i, h] =
-                    self.grid_of(e, middle).ok_or_else(|| format!("a vertex at {p:?} is nowhere on the grid"))?;
+                let (lat, lon, h) = geodetic(e);
+                ups.push(self.up_in_chunk(lat, lon));
+                let [j, i] = self
+                    .grid_of(lat, lon, middle)
+                    .ok_or_else(|| format!("a vertex at {p:?} is nowhere on the grid"))?;
                 let whole = |v: f64| if (v - v.round()).abs() <= snap { v.round() } else { v };
                 prim.positions[k] = [whole(j) * self.spacing[0], h, whole(i) * self.spacing[1]];
                 if is_surface {
@@ -138,7 +144,7 @@ impl Curved {
         // The planar checks must not hold the grid-space heights, read back
         // through the Earth's curvature, to δ: the error is taken in ECEF.
         flat.delta_m = f64::INFINITY;
-        Ok((flat, CurvedChunk { surface, targets, rounding_m }))
+        Ok((flat, CurvedChunk { surface, targets, ups, rounding_m }))
     }
 
     /// Per sample of the footprint (row-major, INFINITY where no triangle

@@ -391,10 +391,7 @@ impl Walk<'_> {
                 problems,
             };
         }
-        match self.curved {
-            Some(cv) => checks::normals(c, Some(&|w| cv.up_at(w)), &mut problems),
-            None => checks::normals(c, None, &mut problems),
-        }
+        checks::normals(c, ecef.map(|e| &e.ups), &mut problems);
         let has_children = !tile.children.is_empty();
         let planar = check_error(self.hf, flat, extras.spacing_m, &mut problems);
         let err = match (self.curved, ecef) {
